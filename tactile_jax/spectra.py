@@ -1,0 +1,602 @@
+"""Auto- and cross-spectra of the four probe channels, by Welch or multitaper averaging.
+
+Recordings have shape ``(..., 4, N)`` with channels ``[x1, x2, y1, y2]``
+(index 1 the shallow probe, index 2 the deep one) sampled at ``fs`` Hz.
+Leading batch dimensions are carried through, and everything here works
+under ``jit`` and ``vmap``: segment lengths, taper counts and FFT sizes are
+static Python ints, the data and ``fs`` may be traced.
+
+Names say which kind of spectrum they hold (DESIGN.md, "Conventions"):
+
+- ``psd`` / ``csd`` are POWER spectral densities (signal units^2 / Hz),
+  one-sided, scaled as ``scipy.signal.welch(..., scaling="density")``;
+- ``log_ratio`` is the log of the AMPLITUDE ratio |P2 / P1| = |S12| / S11,
+  whose slope in omega is half that of the log power ratio S22 / S11.
+
+The estimate of a pair's amplitude ratio is the H1 transfer estimate
+|S12| / S11, which noise on the deep channel does not bias; its per-bin
+standard error and the coherence-based bin selection follow Bendat & Piersol.
+
+Every computation runs in the input's floating dtype (float32 in, float32
+out; float64 in, float64 out); integer input is promoted to JAX's default
+float, half precision to float32.
+
+Result tuples are registered as pytrees whose leaves are the arrays only;
+``n_segments``, ``dof`` and ``method`` are static metadata, so they stay
+Python numbers when a result passes through ``jit`` or ``vmap``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.signal import get_window
+from scipy.signal.windows import dpss
+
+from .errors import TactileInputError
+from .prewhiten import filter_gain, whiten_pairs
+
+__all__ = [
+    "CrossSpectra",
+    "AmplitudeRatio",
+    "default_nperseg",
+    "welch_spectra",
+    "multitaper_spectra",
+    "estimate_spectra",
+    "coherence",
+    "amplitude_ratio",
+    "usable_band",
+]
+
+Array = jax.Array
+
+#: family-wise significance of the zero-coherence test over all bins in :func:`usable_band`
+_COHERENCE_ALPHA = 0.01
+
+
+class CrossSpectra(NamedTuple):
+    """One-sided auto- and cross-spectral densities of the four channels.
+
+    Attributes:
+        freq: ``(M,)`` bin frequencies in Hz, ``0 .. fs/2``, DC included.
+        omega: ``(M,)`` the same in rad/s, ``2 pi freq``.
+        psd: ``(..., 4, M)`` one-sided POWER spectral densities of
+            ``[x1, x2, y1, y2]`` in signal units^2 / Hz (the scaling of
+            ``scipy.signal.welch(scaling="density")``: white noise of variance
+            ``s2`` gives ``2 s2 / fs``).
+        csd: ``(..., 2, M)`` complex one-sided cross spectral densities
+            ``S12 = E[conj(X1) X2]`` of the x pair ``(x1, x2)`` and the y pair
+            ``(y1, y2)``, units^2 / Hz (the convention of
+            ``scipy.signal.csd(x1, x2)``).
+        n_segments: number of averaged segments (Welch) or tapers
+            (multitaper); a Python int.
+        dof: effective number of independent averages ``K_eff``, a Python
+            float. Welch: ``K / (1 + 2 sum_{j=1}^{K-1} (1 - j/K) rho(j)^2)``
+            with ``rho(j) = sum w[n] w[n + j step] / sum w^2`` (Welch 1967;
+            Percival & Walden); multitaper: the number of tapers.
+        method: ``"welch"`` or ``"multitaper"``.
+        bin_factor: variance inflation of a sum over many adjacent bins,
+            ``1 + 2 sum_j rho_j`` with ``rho_j`` the correlation of spectral
+            estimates ``j`` bins apart for white noise (Hann Welch: 1.94;
+            multitaper: about ``2 nw``). Fits that treat bins as independent
+            multiply their covariance by it. A Python float.
+    """
+
+    freq: Array
+    omega: Array
+    psd: Array
+    csd: Array
+    n_segments: int
+    dof: float
+    method: str
+    bin_factor: float = 1.0
+
+
+class AmplitudeRatio(NamedTuple):
+    """Log AMPLITUDE ratio of the deep to the shallow probe, per pair and bin.
+
+    Attributes:
+        omega: ``(M,)`` bin frequencies in rad/s.
+        log_ratio: ``(..., 2, M)`` ``log(|S12| / S11)`` for the x and y pairs:
+            the log amplitude ratio ``|P2 / P1|`` (H1 estimate), dimensionless.
+            ``-inf`` where ``|S12| == 0`` (nothing shared by the pair).
+        log_ratio_err: ``(..., 2, M)`` one-sigma standard error of
+            ``log_ratio``, ``sqrt((1 - g2) / (2 K g2))`` with ``K = dof`` and
+            ``g2`` the coherence (Bendat & Piersol); ``inf`` where ``g2 == 0``.
+        coherence: ``(..., 2, M)`` magnitude-squared coherence ``g2`` in [0, 1].
+        dof: effective number of averages ``K`` used for the error (Python float).
+        bin_factor: the spectra's ``bin_factor`` (correlation between bins).
+    """
+
+    omega: Array
+    log_ratio: Array
+    log_ratio_err: Array
+    coherence: Array
+    dof: float
+    bin_factor: float = 1.0
+
+
+# Arrays are the leaves; counts and names are static metadata.
+jax.tree_util.register_pytree_node(
+    CrossSpectra,
+    lambda s: ((s.freq, s.omega, s.psd, s.csd), (s.n_segments, s.dof, s.method, s.bin_factor)),
+    lambda aux, leaves: CrossSpectra(*leaves, *aux),
+)
+jax.tree_util.register_pytree_node(
+    AmplitudeRatio,
+    lambda r: ((r.omega, r.log_ratio, r.log_ratio_err, r.coherence), (r.dof, r.bin_factor)),
+    lambda aux, leaves: AmplitudeRatio(*leaves, *aux),
+)
+
+
+# ---------------------------------------------------------------------------
+# argument checks (Python, on static shapes and settings only)
+
+
+def _as_signals(signals) -> Array:
+    x = jnp.asarray(signals)
+    if jnp.iscomplexobj(x):
+        raise TactileInputError(
+            f"signals must be real; got dtype {x.dtype}", code="bad_setting"
+        )
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    elif jnp.dtype(x.dtype).itemsize < 4:
+        x = x.astype(jnp.float32)
+    if x.ndim < 2 or x.shape[-2] != 4:
+        raise TactileInputError(
+            f"signals must have shape (..., 4, N) with channels [x1, x2, y1, y2]; got shape {tuple(x.shape)}",
+            code="bad_shape",
+        )
+    return x
+
+
+def _check_fs(fs) -> None:
+    if np.ndim(fs) != 0:
+        raise TactileInputError(f"sample rate fs must be a scalar in Hz; got shape {np.shape(fs)}", code="bad_fs")
+    try:
+        value = float(fs)
+    except TypeError:  # traced (jax.errors.ConcretizationTypeError is a TypeError): cannot check here
+        return
+    if not (math.isfinite(value) and value > 0):
+        raise TactileInputError(f"sample rate fs must be a positive finite number of Hz; got {value!r}", code="bad_fs")
+
+
+def _check_int(name: str, value, *, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise TactileInputError(f"{name} must be an int >= {minimum}; got {value!r}", code="bad_setting")
+    return int(value)
+
+
+def _is_concrete_number(value) -> bool:
+    try:
+        float(value)
+    except TypeError:
+        return False
+    return True
+
+
+def default_nperseg(n_samples: int) -> int:
+    """Default Welch segment length (samples) for a recording of ``n_samples``.
+
+    The largest power of two not above ``n_samples // 8``, and at least 16.
+    With the default 50 % overlap this averages 15 to 30 segments: for 16 s
+    at 1 kHz (N = 16000) it gives nperseg = 1024 (0.98 Hz bins, 30 segments,
+    ``dof`` about 28). Recordings shorter than 16 samples are too short.
+    """
+    target = int(n_samples) // 8
+    if target < 16:
+        return 16
+    return 1 << (target.bit_length() - 1)
+
+
+# ---------------------------------------------------------------------------
+# static (numpy) constants
+
+
+def _onesided_factor(nfft: int) -> np.ndarray:
+    """2 for every one-sided bin except DC and (even ``nfft``) Nyquist, which are 1."""
+    factor = np.full(nfft // 2 + 1, 2.0)
+    factor[0] = 1.0
+    if nfft % 2 == 0:
+        factor[-1] = 1.0
+    return factor
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_window(window, nperseg: int) -> np.ndarray:
+    w = np.asarray(get_window(window, nperseg), dtype=np.float64)
+    w.setflags(write=False)
+    return w
+
+
+def _window_array(window, nperseg: int | None) -> tuple[np.ndarray, int]:
+    """The Welch window as float64 numpy and its length."""
+    if isinstance(window, (str, tuple)):
+        if nperseg is None:
+            raise AssertionError("nperseg must be resolved before a named window")
+        try:
+            hash(window)
+            w = _cached_window(window, nperseg)
+        except TypeError:  # a tuple holding something unhashable
+            w = np.asarray(get_window(window, nperseg), dtype=np.float64)
+        except ValueError as exc:
+            raise TactileInputError(f"unknown window {window!r}: {exc}", code="bad_setting") from None
+        return w, nperseg
+    w = np.asarray(window, dtype=np.float64)
+    if w.ndim != 1 or w.size < 1:
+        raise TactileInputError(f"window must be a name or a 1-D array; got shape {w.shape}", code="bad_setting")
+    if nperseg is not None and w.size != nperseg:
+        raise TactileInputError(
+            f"window has {w.size} samples but nperseg={nperseg}", code="bad_setting"
+        )
+    if not np.all(np.isfinite(w)) or not np.any(w != 0):
+        raise TactileInputError("window must be finite and not all zero", code="bad_setting")
+    return w, w.size
+
+
+def _welch_dof(w: np.ndarray, step: int, n_segments: int) -> float:
+    """Effective number of independent segments of a Welch average (Welch 1967)."""
+    wss = float(np.sum(w * w))
+    total = 0.0
+    for j in range(1, n_segments):
+        shift = j * step
+        if shift >= w.size:
+            break
+        rho = float(np.sum(w[:-shift] * w[shift:])) / wss
+        total += (1.0 - j / n_segments) * rho * rho
+    return n_segments / (1.0 + 2.0 * total)
+
+
+def _bin_factor(tapers: np.ndarray, nfft: int) -> float:
+    """1 + 2 sum_{j>=1} rho_j for the average of unit-energy ``tapers`` (K, n) periodograms.
+
+    rho_j = (1/K) sum_{k,l} |sum_n h_k h_l exp(-2 pi i j n / nfft)|^2 is the
+    correlation of white-noise spectral estimates j bins apart (Percival & Walden).
+    """
+    h = tapers / np.sqrt(np.sum(tapers * tapers, axis=-1, keepdims=True))
+    k = h.shape[0]
+    prod = (h[:, None, :] * h[None, :, :]).reshape(k * k, -1)
+    rho = np.sum(np.abs(np.fft.rfft(prod, n=nfft, axis=-1)) ** 2, axis=0) / k
+    return float(1.0 + 2.0 * np.sum(rho[1:nfft // 2]))
+
+
+@functools.lru_cache(maxsize=16)
+def _dpss_tapers(n_samples: int, nw: float, n_tapers: int) -> np.ndarray:
+    tapers = np.asarray(dpss(n_samples, nw, Kmax=n_tapers, sym=True, norm=2), dtype=np.float64)
+    tapers = tapers.reshape(n_tapers, n_samples)
+    tapers.setflags(write=False)
+    return tapers
+
+
+# ---------------------------------------------------------------------------
+# jitted cores
+
+
+def _detrend(seg: Array, kind: str) -> Array:
+    if kind == "none":
+        return seg
+    seg = seg - jnp.mean(seg, axis=-1, keepdims=True)
+    if kind == "linear":
+        length = seg.shape[-1]
+        t = np.arange(length, dtype=np.float64) - 0.5 * (length - 1)
+        t_sq = float(np.sum(t * t))
+        if t_sq > 0:
+            t = jnp.asarray(t, seg.dtype)
+            slope = jnp.sum(seg * t, axis=-1, keepdims=True) / jnp.asarray(t_sq, seg.dtype)
+            seg = seg - slope * t
+    return seg
+
+
+def _pair_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
+    """Average |X|^2 and conj(X1) X2 over axis -2 of ``spec`` (..., 4, K, M) and scale."""
+    power = jnp.mean(jnp.square(spec.real) + jnp.square(spec.imag), axis=-2) * scale
+    shallow = spec[..., 0::2, :, :]
+    deep = spec[..., 1::2, :, :]
+    cross = jnp.mean(jnp.conj(shallow) * deep, axis=-2) * scale
+    return power, cross
+
+
+def _freq_axis(fs: Array, nfft: int, dtype) -> tuple[Array, Array]:
+    freq = jnp.arange(nfft // 2 + 1, dtype=dtype) * (fs / nfft)
+    return freq, (2.0 * np.pi) * freq
+
+
+@functools.partial(jax.jit, static_argnames=("nperseg", "step", "n_segments", "detrend"))
+def _welch_core(x, fs, window, *, nperseg: int, step: int, n_segments: int, detrend: str):
+    dtype = x.dtype
+    fs = jnp.asarray(fs, dtype)
+    window = jnp.asarray(window, dtype)
+    index = np.arange(n_segments)[:, None] * step + np.arange(nperseg)[None, :]
+    seg = jnp.take(x, index, axis=-1)  # (..., 4, K, nperseg)
+    seg = _detrend(seg, detrend)
+    spec = jnp.fft.rfft(seg * window, axis=-1)  # (..., 4, K, M)
+    scale = jnp.asarray(_onesided_factor(nperseg), dtype) / (fs * jnp.sum(jnp.square(window)))
+    psd, csd = _pair_spectra(spec, scale)
+    freq, omega = _freq_axis(fs, nperseg, dtype)
+    return freq, omega, psd, csd
+
+
+@functools.partial(jax.jit, static_argnames=("nfft",))
+def _multitaper_core(x, fs, tapers, *, nfft: int):
+    dtype = x.dtype
+    fs = jnp.asarray(fs, dtype)
+    tapers = jnp.asarray(tapers, dtype)  # (K, N), unit energy
+    x = x - jnp.mean(x, axis=-1, keepdims=True)
+    spec = jnp.fft.rfft(x[..., None, :] * tapers, n=nfft, axis=-1)  # (..., 4, K, M)
+    energy = jnp.sum(jnp.square(tapers), axis=-1)[:, None]  # (K, 1)
+    spec = spec / jnp.sqrt(energy).astype(spec.dtype)
+    scale = jnp.asarray(_onesided_factor(nfft), dtype) / fs
+    psd, csd = _pair_spectra(spec, scale)
+    freq, omega = _freq_axis(fs, nfft, dtype)
+    return freq, omega, psd, csd
+
+
+# ---------------------------------------------------------------------------
+# estimators
+
+
+def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", detrend="constant") -> CrossSpectra:
+    """Welch (averaged modified periodogram) auto- and cross-spectra.
+
+    Matches ``scipy.signal.welch`` / ``scipy.signal.csd`` with the same
+    ``nperseg``, ``noverlap``, ``window`` and ``detrend``, ``scaling="density"``,
+    one-sided, mean average, no boundary padding (trailing samples that do not
+    fill a segment are dropped).
+
+    Args:
+        signals: ``(..., 4, N)`` recordings, channels ``[x1, x2, y1, y2]``, in
+            signal units (for example pascals or volts).
+        fs: sample rate in Hz (Python float or traced scalar).
+        nperseg: segment length in samples (static int). Default
+            :func:`default_nperseg` (largest power of two <= N // 8, at least
+            16), or the length of an array ``window``.
+        noverlap: overlap between segments in samples (static int),
+            ``0 <= noverlap < nperseg``; default ``nperseg // 2``.
+        window: a ``scipy.signal.get_window`` spec (name or tuple, periodic
+            form as in scipy) or a 1-D array of ``nperseg`` weights.
+        detrend: ``"constant"`` (remove each segment's mean), ``"linear"``
+            or ``False`` / ``None`` / ``"none"``.
+
+    Returns:
+        :class:`CrossSpectra` with ``M = nperseg // 2 + 1`` bins, PSDs in
+        units^2 / Hz, ``n_segments`` the number of segments and ``dof`` their
+        effective number given the overlap.
+
+    Raises:
+        TactileInputError: ``too_short`` when ``N < nperseg``; ``bad_setting``
+            for invalid settings; ``bad_shape``/``bad_fs`` for bad inputs.
+    """
+    x = _as_signals(signals)
+    _check_fs(fs)
+    n_samples = x.shape[-1]
+    if detrend is None or detrend is False:
+        detrend = "none"
+    if detrend not in ("constant", "linear", "none"):
+        raise TactileInputError(
+            f"detrend must be 'constant', 'linear' or None; got {detrend!r}", code="bad_setting"
+        )
+    if nperseg is not None:
+        nperseg = _check_int("nperseg", nperseg, minimum=1)
+    elif not isinstance(window, (str, tuple)):
+        nperseg = int(np.size(window))
+    else:
+        nperseg = default_nperseg(n_samples)
+    if n_samples < nperseg:
+        raise TactileInputError(
+            f"recording has N={n_samples} samples, fewer than one Welch segment of nperseg={nperseg}",
+            code="too_short",
+        )
+    w, nperseg = _window_array(window, nperseg)
+    if noverlap is None:
+        noverlap = nperseg // 2
+    noverlap = _check_int("noverlap", noverlap, minimum=0)
+    if noverlap >= nperseg:
+        raise TactileInputError(
+            f"noverlap={noverlap} must be smaller than nperseg={nperseg}", code="bad_setting"
+        )
+    step = nperseg - noverlap
+    n_segments = (n_samples - nperseg) // step + 1
+    freq, omega, psd, csd = _welch_core(
+        x, fs, w, nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend
+    )
+    return CrossSpectra(freq, omega, psd, csd, n_segments, _welch_dof(w, step, n_segments), "welch",
+                        _bin_factor(w[None, :], nperseg))
+
+
+def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None) -> CrossSpectra:
+    """Multitaper (Thomson) auto- and cross-spectra with DPSS tapers.
+
+    The record's mean is removed, each channel is multiplied by the
+    ``n_tapers`` unit-energy DPSS tapers of ``scipy.signal.windows.dpss``
+    (static constants), and the eigenspectra are averaged with equal weights
+    (no adaptive weighting). The density scaling is that of
+    :func:`welch_spectra`: white noise of variance ``s2`` gives ``2 s2 / fs``.
+
+    Args:
+        signals: ``(..., 4, N)`` recordings, channels ``[x1, x2, y1, y2]``, in
+            signal units.
+        fs: sample rate in Hz (Python float or traced scalar).
+        nw: time-half-bandwidth product (dimensionless); the spectral
+            resolution is ``2 nw fs / N`` Hz. Must satisfy ``0 < nw < N / 2``.
+        n_tapers: number of tapers (static int), default ``floor(2 nw) - 3``
+            (at least 1); 5 for ``nw = 4``. The last tapers of the usual
+            ``2 nw - 1`` leak 1-6 % of their power outside the band, which
+            swamps the deep probe's weak bins when the spectrum spans decades.
+        nfft: FFT length in samples (static int, ``>= N``; zero-padded),
+            default ``N``; the bins are ``k fs / nfft`` Hz.
+
+    Returns:
+        :class:`CrossSpectra` with ``M = nfft // 2 + 1`` bins and
+        ``n_segments = dof = n_tapers``.
+
+    Raises:
+        TactileInputError: ``too_short`` when ``N`` is too small for ``nw`` and
+            ``n_tapers``; ``bad_setting`` for invalid settings.
+    """
+    x = _as_signals(signals)
+    _check_fs(fs)
+    n_samples = x.shape[-1]
+    if not _is_concrete_number(nw) or not (math.isfinite(float(nw)) and float(nw) > 0):
+        raise TactileInputError(f"nw must be a positive number; got {nw!r}", code="bad_setting")
+    nw = float(nw)
+    if n_tapers is None:
+        n_tapers = max(1, int(math.floor(2.0 * nw)) - 3)
+    n_tapers = _check_int("n_tapers", n_tapers, minimum=1)
+    if n_samples < 2 or nw >= n_samples / 2 or n_tapers > n_samples:
+        raise TactileInputError(
+            f"recording has N={n_samples} samples, too short for multitaper with nw={nw:g} and n_tapers={n_tapers}"
+            " (needs nw < N/2 and n_tapers <= N)",
+            code="too_short",
+        )
+    if nfft is None:
+        nfft = n_samples
+    nfft = _check_int("nfft", nfft, minimum=1)
+    if nfft < n_samples:
+        raise TactileInputError(f"nfft={nfft} must be at least N={n_samples}", code="bad_setting")
+    tapers = _dpss_tapers(n_samples, nw, n_tapers)
+    freq, omega, psd, csd = _multitaper_core(x, fs, tapers, nfft=nfft)
+    return CrossSpectra(freq, omega, psd, csd, n_tapers, float(n_tapers), "multitaper",
+                        _bin_factor(tapers, nfft))
+
+
+_ESTIMATORS = {"welch": welch_spectra, "multitaper": multitaper_spectra}
+
+
+def estimate_spectra(signals, fs, *, method="welch", prewhiten: int | None = None, **kw) -> CrossSpectra:
+    """Spectra by the estimator named ``method`` (``"welch"`` or ``"multitaper"``).
+
+    ``signals`` ``(..., 4, N)`` in signal units, ``fs`` in Hz; ``kw`` go to
+    :func:`welch_spectra` or :func:`multitaper_spectra`. ``prewhiten``: the
+    order of a Burg AR whitening filter applied to each pair before
+    averaging (``prewhiten.whiten_pairs``) and divided out afterwards, which
+    removes the spectral window's leakage bias on steep spectra; a pair's
+    ratio and coherence are unchanged by the filter. ``None`` or 0: off.
+
+    Raises:
+        TactileInputError: ``bad_setting`` for an unknown ``method``.
+    """
+    try:
+        estimator = _ESTIMATORS[method]
+    except (KeyError, TypeError):
+        raise TactileInputError(
+            f"unknown spectral method {method!r}; expected one of {sorted(_ESTIMATORS)}", code="bad_setting"
+        ) from None
+    if not prewhiten:
+        return estimator(signals, fs, **kw)
+    order = _check_int("prewhiten", prewhiten, minimum=1)
+    x = _as_signals(signals)
+    if x.shape[-1] < 4 * order:
+        raise TactileInputError(
+            f"recording has N={x.shape[-1]} samples, too short for a prewhitening filter of order {order}",
+            code="too_short")
+    white, coeffs = whiten_pairs(x, order)
+    spec = estimator(white, fs, **kw)
+    gain = filter_gain(coeffs, spec.omega, fs).astype(spec.psd.dtype)     # (..., 2, M)
+    return spec._replace(psd=spec.psd / jnp.repeat(gain, 2, axis=-2), csd=spec.csd / gain)
+
+
+# ---------------------------------------------------------------------------
+# derived quantities
+
+
+def _safe_div(num: Array, den: Array, ok: Array) -> Array:
+    return num / jnp.where(ok, den, jnp.ones_like(den))
+
+
+def coherence(spectra: CrossSpectra) -> Array:
+    """Magnitude-squared coherence ``|S12|^2 / (S11 S22)`` of the x and y pairs.
+
+    Returns a ``(..., 2, M)`` dimensionless array in [0, 1] (up to rounding),
+    the same as ``scipy.signal.coherence`` for Welch spectra; 0 where either
+    auto-spectrum is exactly 0.
+    """
+    psd, csd = spectra.psd, spectra.csd
+    s11 = psd[..., 0::2, :]
+    s22 = psd[..., 1::2, :]
+    mag = jnp.abs(csd)
+    ok = (s11 > 0) & (s22 > 0)
+    g2 = _safe_div(mag, s11, ok) * _safe_div(mag, s22, ok)
+    return jnp.where(ok, g2, jnp.zeros_like(g2))
+
+
+def amplitude_ratio(spectra: CrossSpectra) -> AmplitudeRatio:
+    """Log AMPLITUDE ratio ``log(|S12| / S11)`` of deep to shallow probe, with errors.
+
+    ``|S12| / S11`` is the H1 estimate of ``|P2 / P1|``: uncorrelated noise on
+    the deep channel does not bias it (unlike ``sqrt(S22 / S11)``). The
+    one-sigma error of its log is ``sqrt((1 - g2) / (2 K g2))`` with ``K =
+    spectra.dof`` (Bendat & Piersol). Exact zeros give ``-inf`` and an
+    ``inf`` error, never NaN.
+
+    Returns:
+        :class:`AmplitudeRatio`; arrays ``(..., 2, M)`` for the x and y pairs,
+        ``omega`` in rad/s, the log ratio dimensionless.
+    """
+    s11 = spectra.psd[..., 0::2, :]
+    mag = jnp.abs(spectra.csd)
+    ok = (mag > 0) & (s11 > 0)
+    one = jnp.ones_like(mag)
+    log_ratio = jnp.log(jnp.where(ok, mag, one)) - jnp.log(jnp.where(ok, s11, one))
+    log_ratio = jnp.where(ok, log_ratio, jnp.full_like(log_ratio, -jnp.inf))
+
+    g2 = coherence(spectra)
+    has = g2 > 0
+    g2_safe = jnp.where(has, g2, jnp.ones_like(g2))
+    err = jnp.sqrt(jnp.clip(1.0 - g2_safe, 0.0, None) / (2.0 * float(spectra.dof) * g2_safe))
+    err = jnp.where(has, err, jnp.full_like(err, jnp.inf))
+    return AmplitudeRatio(spectra.omega, log_ratio, err, g2, float(spectra.dof), float(spectra.bin_factor))
+
+
+def usable_band(ratio: AmplitudeRatio, *, min_snr=1.0, max_err=0.5, fmin=None, fmax=None) -> Array:
+    """Bins where the deep probe is above the noise: a ``(..., 2, M)`` bool mask.
+
+    A bin of a pair is usable when all of these hold:
+
+    - coherence ``g2 > min_snr / (1 + min_snr)``, i.e. the deep-probe
+      signal-to-noise POWER ratio ``g2 / (1 - g2)`` exceeds ``min_snr``;
+    - ``g2`` exceeds the level that zero coherence passes in fewer than 1 %
+      of recordings anywhere in the band, ``1 - (0.01 / M) ** (1 / (K - 1))``
+      for ``K = ratio.dof`` and ``M`` bins (with ``K <= 1`` the
+      coherence is 1 by construction and no bin is usable);
+    - ``log_ratio_err <= max_err`` (dimensionless, error of the log);
+    - the bin is not DC (``omega > 0``);
+    - ``fmin <= omega / (2 pi) <= fmax`` -- ``fmin`` and ``fmax`` in Hz, not
+      rad/s (``None``: no limit);
+    - ``log_ratio``, its error and ``g2`` are finite.
+
+    ``min_snr``, ``max_err``, ``fmin`` and ``fmax`` may be traced; there is no
+    Python branching on data, so this works under ``jit`` and ``vmap``.
+    """
+    g2 = ratio.coherence
+    dof = float(ratio.dof)
+    if dof <= 1.0:
+        return jnp.zeros(g2.shape, dtype=bool)
+    for name, value in (("min_snr", min_snr), ("max_err", max_err)):
+        if _is_concrete_number(value) and not float(value) >= 0:
+            raise TactileInputError(f"{name} must be >= 0; got {value!r}", code="bad_setting")
+    # Bonferroni over the M bins: with thousands of multitaper bins a per-bin 1 % test
+    # would admit dozens of pure-noise bins with small error bars
+    n_bins = g2.shape[-1]
+    significance = 1.0 - (_COHERENCE_ALPHA / n_bins) ** (1.0 / (dof - 1.0))
+    snr_level = min_snr / (1.0 + min_snr)
+    freq = ratio.omega / (2.0 * np.pi)  # Hz
+    mask = (
+        (g2 > snr_level)
+        & (g2 > significance)
+        & (ratio.log_ratio_err <= max_err)
+        & (ratio.omega > 0)
+        & jnp.isfinite(ratio.log_ratio)
+        & jnp.isfinite(ratio.log_ratio_err)
+        & jnp.isfinite(g2)
+    )
+    if fmin is not None:
+        mask = mask & (freq >= fmin)
+    if fmax is not None:
+        mask = mask & (freq <= fmax)
+    return mask

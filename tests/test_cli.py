@@ -1,0 +1,58 @@
+"""The command line: demo, simulate, spectra, and one-line errors with a non-zero exit."""
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from tactile_jax.cli import main
+from tactile_jax.io import read_recording, read_spectra
+
+
+@pytest.fixture(scope="module")
+def runner():
+    return CliRunner()
+
+
+def test_demo_prints_truth_and_estimates(runner, tmp_path):
+    res = runner.invoke(main, ["demo", "--out-dir", str(tmp_path), "--duration", "8"])
+    assert res.exit_code == 0, res.output
+    assert "|vx|, Eq. 6 slope" in res.output and "|vx|, exact R fit" in res.output
+    assert (tmp_path / "fig5_demo.png").stat().st_size > 10_000
+
+
+def test_simulate_then_spectra(runner, tmp_path):
+    rec_path = tmp_path / "scene.h5"
+    res = runner.invoke(main, ["simulate", "--out", str(rec_path), "--duration", "2", "--records", "2",
+                               "--velocity", "0.02,0.01", "--contact-depth", "1e-4"])
+    assert res.exit_code == 0, res.output
+    rec = read_recording(rec_path)
+    assert rec.signals.shape == (2, 4, 2000)
+    assert rec.truth["a"] == pytest.approx(np.sqrt(0.03 * 1e-4))
+    spec_path = tmp_path / "spec.npz"
+    res = runner.invoke(main, ["spectra", str(rec_path), "--out", str(spec_path), "--record", "1"])
+    assert res.exit_code == 0, res.output
+    spec = read_spectra(spec_path)
+    assert spec.psd.shape[0] == 4 and spec.ratio.shape == (2, spec.omega.size)
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["spectra", "{tmp}/missing.h5", "--out", "{tmp}/o.npz"], "missing.h5: file not found"),
+        (["spectra", "{tmp}/garbage.h5", "--out", "{tmp}/o.npz"], "garbage.h5: not a readable HDF5 file"),
+        (["spectra", "{tmp}/short.npz", "--out", "{tmp}/o.npz"], "short.npz: recording has N=10 samples"),
+        (["simulate", "--out", "{tmp}/x.h5", "--velocity", "0,0"], "velocity must be non-zero"),
+        (["simulate", "--out", "{tmp}/x.h5", "--gains", "1,2"], "--gains must be 4"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(runner, tmp_path, args, needle):
+    (tmp_path / "garbage.h5").write_bytes(b"not hdf5 at all")
+    from tactile_jax.io import write_recording
+    from tactile_jax.recording import Recording
+
+    write_recording(tmp_path / "short.npz", Recording(np.zeros((4, 10)), 1000.0, (0.265e-3, 0.925e-3)))
+    res = runner.invoke(main, [a.format(tmp=tmp_path) for a in args])
+    assert res.exit_code == 2
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], res.output
+    assert "Traceback" not in res.output
