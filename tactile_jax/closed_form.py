@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 __all__ = ["dominant_wavenumber", "SlopeFit", "slope_speed", "radius_from_offset"]
@@ -44,6 +45,7 @@ class SlopeFit(NamedTuple):
     ok: jnp.ndarray
 
 
+@jax.jit
 def slope_speed(omega, log_ratio, log_ratio_err, mask, d1, d2, bin_factor=1.0) -> SlopeFit:
     """Eq. 6: slip speed along a probe pair from the slope of its log AMPLITUDE ratio.
 

@@ -16,6 +16,7 @@ import numpy as np
 from .closed_form import radius_from_offset, slope_speed
 from .lsq import least_squares
 from .r_curve import log_r_exact
+from jax.scipy.special import logsumexp
 
 __all__ = ["PairFit", "fit_pair"]
 
@@ -36,15 +37,20 @@ class PairFit(NamedTuple):
 
 
 def _residuals(theta, args):
-    omega, y, err, mask, d1, d2 = args
+    omega, y, err, mask, d1, d2, offsets, log_w = args
     log_v, log_a, log_g = theta[0], theta[1], theta[2]
-    model = log_r_exact(omega / jnp.exp(log_v), d1, d2, jnp.exp(log_a)) + log_g
+    # the expected estimate at a bin is the spectral-window average of R around it
+    # (the prewhitened shallow spectrum is flat, so R is averaged with the window's weights)
+    d_omega = omega[1] - omega[0]
+    om = jnp.abs(omega[:, None] + offsets[None, :] * d_omega)
+    log_r = log_r_exact(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
+    model = logsumexp(log_r + log_w[None, :], axis=-1) + log_g
     safe_err = jnp.where(mask, err, 1.0)
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
 
 def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, fit_gain=False,
-             speed0=None, a0=None, bin_factor=1.0, solver="optimistix") -> PairFit:
+             speed0=None, a0=None, bin_factor=1.0, kernel=((0.0,), (1.0,)), solver="optimistix") -> PairFit:
     """Fit log R_exact(omega / v; a) + log g to one pair's log AMPLITUDE ratio.
 
     omega: (M,) rad/s. log_ratio, log_ratio_err: (M,) log|P2/P1| and its
@@ -52,6 +58,8 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     gain_ratio: the known g, or the start value when ``fit_gain``.
     speed0 (m/s), a0 (m): starting values (default: the Eq. 6 slope and Eq. 26 offset).
     bin_factor: the spectra's correlation between bins (inflates the covariance).
+    kernel: the spectra's spectral window ``(offsets in bins, weights)``;
+        the model averages R over it (resolution bias). Default: none.
     """
     mask = np.asarray(mask, bool) & np.isfinite(log_ratio) & np.isfinite(log_ratio_err)
     if speed0 is None or a0 is None:
@@ -62,9 +70,11 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
             a_off = float(radius_from_offset(float(line.intercept) - np.log(gain_ratio), d1, d2))
             a0 = a_off if np.isfinite(a_off) else 2e-3
     theta0 = jnp.array([np.log(speed0), np.log(a0), np.log(gain_ratio)])
+    offsets, weights = (np.asarray(k, float) for k in kernel)
+    keep = weights > 0
     args = (jnp.asarray(omega), jnp.asarray(log_ratio), jnp.asarray(log_ratio_err), jnp.asarray(mask),
-            float(d1), float(d2))
-    res = least_squares(_residuals, theta0, args, free=(True, True, bool(fit_gain)), solver=solver,
+            float(d1), float(d2), jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
+    res = least_squares(_residuals, theta0, args, jnp.array([True, True, bool(fit_gain)]), solver=solver,
                         bin_factor=float(bin_factor))
     th = np.asarray(res.theta)
     sd = np.sqrt(np.clip(np.diag(np.asarray(res.cov)), 0, None))

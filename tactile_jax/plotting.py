@@ -69,3 +69,145 @@ def plot_ratio_figure(path, *, freq, psd_shallow, psd_deep, omega, log_ratio, lo
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+__all__ += ["plot_fit", "plot_posterior_corner"]
+
+_PAIR_LABELS = (("x", "$\\log|P_{x2}/P_{x1}|$"), ("y", "$\\log|P_{y2}/P_{y1}|$"))
+
+
+def _result_stem(result) -> str:
+    """``<file stem>_<index>`` naming a result's figures (``result`` when it has no file)."""
+    import re
+
+    stem = Path(str(result.file)).stem if getattr(result, "file", None) else "result"
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", stem) or "result"
+    return f"{stem}_{int(getattr(result, 'index', 0) or 0)}"
+
+
+def _fit_title(result) -> str:
+    def part(name, value, err, scale, unit):
+        if value is None or not np.isfinite(value):
+            return f"{name} n/d"
+        if err is None or not np.isfinite(err):
+            return f"{name} = {scale * value:.4g} {unit}"
+        from .report import _pair
+
+        v_txt, e_txt = _pair(scale * value, scale * err)
+        return f"{name} = {v_txt} $\\pm$ {e_txt} {unit}"
+
+    bits = [part("$|v_x|$", result.vx, result.vx_err, 100, "cm/s"), part("$|v_y|$", result.vy, result.vy_err, 100, "cm/s")]
+    if result.a is not None:
+        bits.append(part("$a$", result.a, result.a_err, 1e3, "mm"))
+    elif getattr(result, "a_lower", None):
+        bits.append(f"$a$ > {1e3 * result.a_lower:.3g} mm (95 %)")
+    if result.redchi is not None:
+        bits.append(f"$\\chi^2_\\nu$ = {result.redchi:.3g}")
+    src = Path(str(result.file)).name if result.file else "fit"
+    return f"{src} [{result.index}]: " + ", ".join(bits)
+
+
+def _ratio_limits(lr, err, measured, model, shown):
+    """y-limits of a log-ratio panel: the measurements with their errors, else the model (clipped)."""
+    if measured.any():
+        lo = float(np.nanmin((lr - err)[measured]))
+        top = float(np.nanmax((lr + err)[measured]))
+        near = shown & np.isfinite(model) & (model > lo - 3.0)      # the model near the data, not its far tail
+        if near.any():
+            lo, top = min(lo, float(model[near].min())), max(top, float(model[near].max()))
+    else:
+        vals = model[shown & np.isfinite(model)]
+        vals = np.clip(vals, -30.0, 5.0)
+        lo, top = (float(vals.min()), float(vals.max())) if vals.size else (-5.0, 0.5)
+    if top - lo < 1.0:                                               # at least one e-fold of context
+        mid = 0.5 * (top + lo)
+        lo, top = mid - 0.5, mid + 0.5
+    pad = 0.1 * (top - lo)
+    return lo - pad, top + pad
+
+
+def plot_fit(result, out_dir) -> list[Path]:
+    """Fig. 7-style figure of a joint fit: measured and fitted log|P2/P1| of the x and y pairs.
+
+    result: a ``fit.FitResult``. out_dir: folder for ``fit_<file stem>_<index>.png``.
+    Each panel: the measured log amplitude ratio against omega (rad/s) with its
+    one-sigma error bars in the bins the fit used; other bins carrying a measured
+    value in grey; the fitted model curve with its +/- 1 sigma band (Laplace
+    covariance, ``fit.model_curves``). Returns the written paths: [] when the fit has
+    no joint-model curves (ratio-only input, or a fit that did not run).
+    """
+    from .fit import model_curves
+
+    curves = model_curves(result)
+    if curves is None:
+        return []
+    omega = np.asarray(curves["omega"], float)
+    used = np.asarray(curves["mask"], bool).any(axis=0)
+    # the model is an extrapolation beyond the bins used: show up to 1.5 times the highest one
+    hi = 1.5 * omega[used].max() if used.any() else (omega.max() if omega.size else 1.0)
+    hi = float(min(hi, omega.max() * 1.02)) if omega.size else 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    for p, (ax, (axis, ylabel)) in enumerate(zip(axes, _PAIR_LABELS)):
+        lr = np.asarray(curves["log_ratio"][p], float)
+        err = np.asarray(curves["log_ratio_err"][p], float)
+        mask = np.asarray(curves["mask"][p], bool)
+        model = np.asarray(curves["model"][p], float)
+        sd = np.asarray(curves["model_sd"][p], float)
+        filler = (lr == 0.0) & (err == 1.0)                  # bins the fit filled in, not measurements
+        other = ~mask & ~filler & np.isfinite(lr)
+        if other.any():
+            ax.plot(omega[other], lr[other], ".", color="0.7", ms=4, label="bins not used")
+        if mask.any():
+            ax.errorbar(omega[mask], lr[mask], yerr=err[mask], fmt="o", ms=3, lw=0.8, color="C0",
+                        label="measured (bins used)")
+        ok = np.isfinite(model)
+        ax.plot(omega[ok], model[ok], "-", color="C3", lw=1.4, label="joint model fit")
+        band = ok & np.isfinite(sd)
+        ax.fill_between(omega[band], (model - sd)[band], (model + sd)[band], color="C3", alpha=0.25, lw=0,
+                        label="model $\\pm 1\\sigma$")
+        ax.set_xlabel("$\\omega$ (rad/s)")
+        ax.set_ylabel(ylabel)
+        n = int(mask.sum())
+        ax.set_title(f"({'ab'[p]}) {axis} pair: {n} bin{'s' if n != 1 else ''} used", fontsize=10)
+        ax.set_xlim(0, hi)
+        ax.set_ylim(*_ratio_limits(lr, err, mask | other, model, omega <= hi))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(_fit_title(result), fontsize=10)
+    fig.text(0.01, 0.01, provenance(), fontsize=6, color="0.4")
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"fit_{_result_stem(result)}.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return [path]
+
+
+def plot_posterior_corner(result, out_dir, *, truth: dict | None = None) -> list[Path]:
+    """Corner plot of the posterior of |vx|, |vy| (cm/s) and a (mm): ``corner_<file stem>_<index>.png``.
+
+    result: a ``fit.FitResult`` with ``posterior`` set (``posterior.run_emcee``).
+    truth: a simulator's truth dict (``vx``, ``vy``, ``a`` in SI units), drawn as lines.
+    Returns the written paths ([] when the result has no posterior).
+    """
+    from .corner import corner_plot
+
+    post = getattr(result, "posterior", None)
+    if post is None:
+        return []
+    scales = {"vx": (100.0, "$|v_x|$ (cm/s)"), "vy": (100.0, "$|v_y|$ (cm/s)"), "a": (1e3, "$a$ (mm)")}
+    names = [n for n in scales if n in post.samples]
+    if not names:
+        return []
+    samples = {n: scales[n][0] * np.asarray(post.samples[n], float) for n in names}
+    truths = {}
+    for n in names:
+        v = (truth or {}).get(n)
+        if v is not None and np.isfinite(v):
+            truths[n] = scales[n][0] * (abs(float(v)) if n in ("vx", "vy") else float(v))
+    src = Path(str(result.file)).name if result.file else "fit"
+    path = Path(out_dir) / f"corner_{_result_stem(result)}.png"
+    corner_plot(samples, path, names=names, truths=truths, labels={n: scales[n][1] for n in names},
+                title=f"{src} [{result.index}]: emcee posterior ({post.n_steps} steps, burn-in {post.n_burn})")
+    return [path]

@@ -59,6 +59,7 @@ def whiten_pairs(signals, order: int):
     return _fir(signals, per_channel), coeffs
 
 
+@jax.jit
 def filter_gain(coeffs, omega, fs):
     """|A(exp(i omega / fs))|^2 of filters (..., order + 1) at omega (M,) rad/s: shape (..., M)."""
     k = jnp.arange(coeffs.shape[-1])

@@ -85,6 +85,15 @@ class CrossSpectra(NamedTuple):
             estimates ``j`` bins apart for white noise (Hann Welch: 1.94;
             multitaper: about ``2 nw``). Fits that treat bins as independent
             multiply their covariance by it. A Python float.
+        kernel: the spectral window seen by one bin, ``(offsets, weights)``:
+            tuples of offsets in bins and weights summing to 1, so that the
+            expected estimate at bin i is ``sum_j w_j S(omega_i + offset_j *
+            d_omega)`` for a true density S. Fits use it to model the
+            resolution bias of a steep spectrum.
+        whitening: ``(..., 2, p + 1)`` AR error filters of the x and y pairs
+            applied before averaging (``estimate_spectra(prewhiten=p)``), or
+            None. The estimator saw ``S |A|^2``: the kernel acts on that.
+        fs: the sample rate, Hz (needed with ``whitening``), or None.
     """
 
     freq: Array
@@ -95,6 +104,9 @@ class CrossSpectra(NamedTuple):
     dof: float
     method: str
     bin_factor: float = 1.0
+    kernel: tuple = ((0.0,), (1.0,))
+    whitening: Array | None = None
+    fs: Array | None = None
 
 
 class AmplitudeRatio(NamedTuple):
@@ -124,8 +136,9 @@ class AmplitudeRatio(NamedTuple):
 # Arrays are the leaves; counts and names are static metadata.
 jax.tree_util.register_pytree_node(
     CrossSpectra,
-    lambda s: ((s.freq, s.omega, s.psd, s.csd), (s.n_segments, s.dof, s.method, s.bin_factor)),
-    lambda aux, leaves: CrossSpectra(*leaves, *aux),
+    lambda s: ((s.freq, s.omega, s.psd, s.csd, s.whitening, s.fs),
+               (s.n_segments, s.dof, s.method, s.bin_factor, s.kernel)),
+    lambda aux, leaves: CrossSpectra(*leaves[:4], *aux, *leaves[4:]),
 )
 jax.tree_util.register_pytree_node(
     AmplitudeRatio,
@@ -264,6 +277,17 @@ def _bin_factor(tapers: np.ndarray, nfft: int) -> float:
     prod = (h[:, None, :] * h[None, :, :]).reshape(k * k, -1)
     rho = np.sum(np.abs(np.fft.rfft(prod, n=nfft, axis=-1)) ** 2, axis=0) / k
     return float(1.0 + 2.0 * np.sum(rho[1:nfft // 2]))
+
+
+def _spectral_kernel(tapers: np.ndarray, nfft: int, half_width: float, step: float = 0.5) -> tuple:
+    """Mean |FT|^2 of unit-energy ``tapers`` (K, n) at offsets -half_width..half_width bins of ``nfft``."""
+    h = tapers / np.sqrt(np.sum(tapers * tapers, axis=-1, keepdims=True))
+    offsets = np.arange(-half_width, half_width + step / 2, step)
+    n = np.arange(h.shape[-1])
+    phase = np.exp(-2j * np.pi * np.outer(offsets, n) / nfft)            # (J, n)
+    power = np.mean(np.abs(h @ phase.T) ** 2, axis=0)                     # (J,)
+    weights = power / power.sum()
+    return tuple(float(o) for o in offsets), tuple(float(w) for w in weights)
 
 
 @functools.lru_cache(maxsize=16)
@@ -406,7 +430,7 @@ def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", de
         x, fs, w, nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend
     )
     return CrossSpectra(freq, omega, psd, csd, n_segments, _welch_dof(w, step, n_segments), "welch",
-                        _bin_factor(w[None, :], nperseg))
+                        _bin_factor(w[None, :], nperseg), _spectral_kernel(w[None, :], nperseg, 3.0))
 
 
 def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None) -> CrossSpectra:
@@ -462,7 +486,7 @@ def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None) -> Cros
     tapers = _dpss_tapers(n_samples, nw, n_tapers)
     freq, omega, psd, csd = _multitaper_core(x, fs, tapers, nfft=nfft)
     return CrossSpectra(freq, omega, psd, csd, n_tapers, float(n_tapers), "multitaper",
-                        _bin_factor(tapers, nfft))
+                        _bin_factor(tapers, nfft), _spectral_kernel(tapers, nfft, math.ceil(nw * nfft / n_samples) + 1.0))
 
 
 _ESTIMATORS = {"welch": welch_spectra, "multitaper": multitaper_spectra}
@@ -497,8 +521,14 @@ def estimate_spectra(signals, fs, *, method="welch", prewhiten: int | None = Non
             code="too_short")
     white, coeffs = whiten_pairs(x, order)
     spec = estimator(white, fs, **kw)
+    return _unwhiten(spec, coeffs, jnp.asarray(fs, spec.psd.dtype))
+
+
+@jax.jit
+def _unwhiten(spec: CrossSpectra, coeffs, fs) -> CrossSpectra:
     gain = filter_gain(coeffs, spec.omega, fs).astype(spec.psd.dtype)     # (..., 2, M)
-    return spec._replace(psd=spec.psd / jnp.repeat(gain, 2, axis=-2), csd=spec.csd / gain)
+    return spec._replace(psd=spec.psd / jnp.repeat(gain, 2, axis=-2), csd=spec.csd / gain,
+                         whitening=coeffs, fs=fs)
 
 
 # ---------------------------------------------------------------------------
@@ -509,6 +539,7 @@ def _safe_div(num: Array, den: Array, ok: Array) -> Array:
     return num / jnp.where(ok, den, jnp.ones_like(den))
 
 
+@jax.jit
 def coherence(spectra: CrossSpectra) -> Array:
     """Magnitude-squared coherence ``|S12|^2 / (S11 S22)`` of the x and y pairs.
 
@@ -525,6 +556,7 @@ def coherence(spectra: CrossSpectra) -> Array:
     return jnp.where(ok, g2, jnp.zeros_like(g2))
 
 
+@jax.jit
 def amplitude_ratio(spectra: CrossSpectra) -> AmplitudeRatio:
     """Log AMPLITUDE ratio ``log(|S12| / S11)`` of deep to shallow probe, with errors.
 
@@ -580,13 +612,22 @@ def usable_band(ratio: AmplitudeRatio, *, min_snr=1.0, max_err=0.5, fmin=None, f
     for name, value in (("min_snr", min_snr), ("max_err", max_err)):
         if _is_concrete_number(value) and not float(value) >= 0:
             raise TactileInputError(f"{name} must be >= 0; got {value!r}", code="bad_setting")
+    fmin = -np.inf if fmin is None else fmin
+    fmax = np.inf if fmax is None else fmax
+    return _usable_band_core(ratio, min_snr, max_err, fmin, fmax)
+
+
+@jax.jit
+def _usable_band_core(ratio, min_snr, max_err, fmin, fmax):
+    g2 = ratio.coherence
+    dof = float(ratio.dof)
     # Bonferroni over the M bins: with thousands of multitaper bins a per-bin 1 % test
     # would admit dozens of pure-noise bins with small error bars
     n_bins = g2.shape[-1]
     significance = 1.0 - (_COHERENCE_ALPHA / n_bins) ** (1.0 / (dof - 1.0))
     snr_level = min_snr / (1.0 + min_snr)
     freq = ratio.omega / (2.0 * np.pi)  # Hz
-    mask = (
+    return (
         (g2 > snr_level)
         & (g2 > significance)
         & (ratio.log_ratio_err <= max_err)
@@ -594,9 +635,6 @@ def usable_band(ratio: AmplitudeRatio, *, min_snr=1.0, max_err=0.5, fmin=None, f
         & jnp.isfinite(ratio.log_ratio)
         & jnp.isfinite(ratio.log_ratio_err)
         & jnp.isfinite(g2)
+        & (freq >= fmin)
+        & (freq <= fmax)
     )
-    if fmin is not None:
-        mask = mask & (freq >= fmin)
-    if fmax is not None:
-        mask = mask & (freq <= fmax)
-    return mask

@@ -51,3 +51,10 @@ def test_eq6_slope_holds_for_a_large_contact_and_is_flagged_for_a_small_one():
     small = slope_speed(*args, bin_factor=bf)
     # the window bends the line: the slope overestimates |v| and says so through chi2
     assert float(small.speed) > 0.023 * 1.03 and float(small.redchi) > 3.0
+
+
+def test_jaxopt_solver_agrees_with_optimistix():
+    args, bf = _x_pair(paper_fig5_scene(seed=1))
+    a = fit_pair(*args, bin_factor=bf)
+    b = fit_pair(*args, bin_factor=bf, solver="jaxopt")
+    assert b.speed == pytest.approx(a.speed, rel=1e-4) and b.a == pytest.approx(a.a, rel=1e-3)

@@ -1,0 +1,140 @@
+"""Coverage of the joint fit's error bars on simulated scenes (issue #3).
+
+Seeded scenes across speeds (1-8 cm/s), slip directions (0-90 deg), contact
+radii (0.8-2.5 mm, and 5-8 mm large contacts) and SNR 30-60 dB, each 16 s at
+1 kHz with the Gaussian window; each is fitted with the default joint model
+and the 1- and 2-sigma intervals of |vx|, |vy| and a are checked against the
+truth. Prints a table, writes coverage.json and coverage.png.
+
+    python benchmarks/coverage.py --scenes 120 --out benchmarks/out
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
+from tactile_jax.scene import Scene, simulate  # noqa: E402
+from tactile_jax.texture import RandomTexture  # noqa: E402
+
+
+def scenes(n: int, seed: int = 2026, large_fraction: float = 0.15):
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        speed = float(np.exp(rng.uniform(np.log(0.01), np.log(0.08))))
+        angle = float(rng.uniform(0, np.pi / 2))
+        large = rng.uniform() < large_fraction
+        a = float(rng.uniform(5e-3, 8e-3)) if large else float(np.exp(rng.uniform(np.log(0.8e-3), np.log(2.5e-3))))
+        snr = float(rng.uniform(30, 60))
+        yield i, Scene(texture=RandomTexture(), velocity=(speed * np.cos(angle), speed * np.sin(angle)),
+                       contact_radius=a, snr_db=snr, duration=16.0, fs=1000.0, seed=int(rng.integers(1 << 30)))
+
+
+def run(n: int, options: FitOptions = FitOptions(), seed: int = 2026, verbose: bool = True):
+    rows = []
+    for i, scene in scenes(n, seed):
+        t0 = time.perf_counter()
+        rec = simulate(scene)
+        t1 = time.perf_counter()
+        res = fit_recording(rec, options)
+        t2 = time.perf_counter()
+        row = {"i": i, "vx_true": abs(scene.velocity[0]), "vy_true": abs(scene.velocity[1]), "a_true": scene.a,
+               "snr_db": scene.snr_db, "speed": float(np.hypot(*scene.velocity)),
+               "angle_deg": float(np.degrees(np.arctan2(abs(scene.velocity[1]), abs(scene.velocity[0])))),
+               "sim_s": t1 - t0, "fit_s": t2 - t1, **res.to_record()}
+        rows.append(row)
+        if verbose:
+            print(_line(row), flush=True)
+    return rows
+
+
+def _line(r):
+    def f(v, s=1.0, p=3):
+        return "  -  " if v is None else f"{v * s:.{p}f}"
+    return (f"{r['i']:4d} |v|={100 * r['speed']:.2f} ang={r['angle_deg']:5.1f} a={1e3 * r['a_true']:.2f} "
+            f"snr={r['snr_db']:.0f} | vx {f(r['vx'], 100)}+/-{f(r['vx_err'], 100)} ({100 * r['vx_true']:.3f}) "
+            f"vy {f(r['vy'], 100)}+/-{f(r['vy_err'], 100)} ({100 * r['vy_true']:.3f}) "
+            f"a {f(r['a'], 1e3)}+/-{f(r['a_err'], 1e3)} lo {f(r['a_lower'], 1e3)} | {r['status']} "
+            f"chi2r {f(r['redchi'], 1, 2)} {r['fit_s']:.1f}s")
+
+
+def summarize(rows):
+    out = {}
+    for name in ("vx", "vy", "a"):
+        pulls = np.array([(r[name] - r[name + "_true"]) / r[name + "_err"] for r in rows
+                          if r[name] is not None and r[name + "_err"]])
+        out[name] = {"n": int(pulls.size), "cover_1sigma": float(np.mean(np.abs(pulls) <= 1)) if pulls.size else None,
+                     "cover_2sigma": float(np.mean(np.abs(pulls) <= 2)) if pulls.size else None,
+                     "pull_mean": float(np.mean(pulls)) if pulls.size else None,
+                     "pull_sd": float(np.std(pulls)) if pulls.size else None}
+    small = [r for r in rows if r["a_true"] <= 2.5e-3]
+    for name in ("vx", "vy"):
+        dev = np.array([abs(r[name] - r[name + "_true"]) / r["speed"] for r in small if r[name] is not None])
+        out[name + "_dev_over_speed_p95"] = float(np.percentile(dev, 95)) if dev.size else None
+        out[name + "_dev_over_speed_max"] = float(dev.max()) if dev.size else None
+    dev_a = np.array([abs(r["a"] - r["a_true"]) / r["a_true"] for r in small if r["a"] is not None])
+    out["a_rel_dev_p95"] = float(np.percentile(dev_a, 95)) if dev_a.size else None
+    out["a_rel_dev_max"] = float(dev_a.max()) if dev_a.size else None
+    large = [r for r in rows if r["a_true"] > 2.5e-3]
+    out["large_a_reported_as_bound"] = sum(r["a"] is None for r in large)
+    out["large_n"] = len(large)
+    out["large_a_bound_holds"] = sum(r["a_lower"] is not None and r["a_lower"] <= r["a_true"] for r in large)
+    out["status"] = {s: sum(r["status"] == s for r in rows) for s in sorted({r["status"] for r in rows})}
+    out["fit_s_median"] = float(np.median([r["fit_s"] for r in rows]))
+    return out
+
+
+def figure(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tactile_jax.plotting import provenance
+
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    for ax, name in zip(axes, ("vx", "vy", "a")):
+        pulls = np.array([(r[name] - r[name + "_true"]) / r[name + "_err"] for r in rows
+                          if r[name] is not None and r[name + "_err"]])
+        ax.hist(np.clip(pulls, -5, 5), bins=np.linspace(-5, 5, 41), density=True, alpha=0.7)
+        z = np.linspace(-5, 5, 200)
+        ax.plot(z, np.exp(-z * z / 2) / np.sqrt(2 * np.pi), "k-", lw=1)
+        c1 = np.mean(np.abs(pulls) <= 1) if pulls.size else np.nan
+        c2 = np.mean(np.abs(pulls) <= 2) if pulls.size else np.nan
+        ax.set_title(f"{name}: 1$\\sigma$ {100 * c1:.0f}%, 2$\\sigma$ {100 * c2:.0f}% (n={pulls.size})")
+        ax.set_xlabel("(estimate - truth) / error")
+    fig.text(0.01, 0.01, provenance(), fontsize=6, color="0.4")
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scenes", type=int, default=120)
+    p.add_argument("--seed", type=int, default=2026)
+    p.add_argument("--out", default="benchmarks/out")
+    a = p.parse_args()
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"# coverage study: {a.scenes} scenes, seed {a.seed}; {platform.machine()} {platform.processor()}, "
+          f"jax {jax.__version__}, numpy {np.__version__}")
+    rows = run(a.scenes, seed=a.seed)
+    summary = summarize(rows)
+    print(json.dumps(summary, indent=1))
+    (out / "coverage.json").write_text(json.dumps({"summary": summary, "rows": rows}, indent=1, default=str))
+    figure(rows, out / "coverage.png")
+
+
+if __name__ == "__main__":
+    main()

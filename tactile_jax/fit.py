@@ -1,0 +1,728 @@
+"""Joint estimation of slip velocity, contact radius, gains and texture spectrum, with error bars.
+
+``fit_recording`` (probe signals) and ``fit_spectra`` (recorded spectra) run
+the same pipeline: spectra -> usable band (coherent bins that are not mere
+leakage) -> closed-form and single-pair starting values -> the joint 2-D model
+of ``joint_model`` fitted by Levenberg-Marquardt (``lsq``) -> Laplace errors,
+bounds for what the data cannot determine, texture cross-sections (Eq. 18-19).
+Nothing here raises on a fit that fails: the result's ``status`` and
+``message`` say why (bad input still raises ``TactileInputError`` in
+``fit_recording``/``fit_spectra``; ``fit_file`` turns it into a status).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import joint_model as jm
+from .closed_form import dominant_wavenumber, slope_speed
+from .errors import TactileInputError
+from .lsq import LsqResult, least_squares
+from .pair_fit import fit_pair
+from .problem import FitProblem
+from .r_curve import log_g
+from .recording import Recording, validate_recording
+from .sensor import PAPER_SENSOR
+from .prewhiten import filter_gain
+from .spectra import CrossSpectra, amplitude_ratio, estimate_spectra, usable_band
+
+__all__ = ["FitOptions", "FitResult", "TextureSection", "fit_recording", "fit_cross_spectra", "fit_spectra", "model_curves",
+           "RESULT_FIELDS"]
+
+#: the data contract's result fields, in order (DESIGN.md); more follow in ``FitResult.to_record``
+RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth",
+                 "contact_depth_err", "gain_ratio", "gain_ratio_err", "k0x", "k0y", "model", "window",
+                 "converged", "status", "message")
+
+_log_g = jax.jit(log_g)
+_A_BOUNDS = (1e-5, 0.1)
+_GRID_MARGIN = 6.0               # bins of model grid beyond the fitted bins (>= any kernel's reach)          # m: contact radii the model is asked to consider
+_V_BOUNDS = (1e-6, 10.0)         # m/s
+
+
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """How to fit a scene (SI units). Defaults suit the paper's sensor at 1 kHz.
+
+    method, prewhiten, nperseg: spectral estimator (``spectra.estimate_spectra``).
+    velocity: known (|vx|, |vy|) in m/s (the arm's command, paper section 4.3): held fixed.
+    gain_ratio: known deep/shallow gain ratios (gx, gy) or one for both; None: the
+        file's ``gain_ratio`` if any, else 1. ``fit_gain``: fit them instead.
+    noise_floor: fit a white noise floor on the shallow probes.
+    n_knots: knots of the isotropic log texture spectrum; smoothness: the prior sd of
+        its second differences between knots (smaller: smoother).
+    min_snr, max_err, fmin, fmax: usable-band selection (``spectra.usable_band``; Hz).
+    leakage_db: a bin whose shallow PSD lies this far below the highest within
+        +/- 3 bins holds only spectral leakage (of a line texture) and is dropped.
+    solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
+    window: "gaussian" (the joint model's window).
+    """
+
+    method: str = "welch"
+    prewhiten: int | None = 8
+    nperseg: int | None = None
+    velocity: tuple[float, float] | None = None
+    gain_ratio: Any = None
+    fit_gain: bool = False
+    noise_floor: bool = False
+    n_knots: int = 12
+    smoothness: float = 1.0
+    min_snr: float = 1.0
+    max_err: float = 0.5
+    fmin: float | None = None
+    fmax: float | None = None
+    leakage_db: float = 20.0
+    solver: str = "optimistix"
+    window: str = "gaussian"
+
+
+class TextureSection(NamedTuple):
+    """A texture cross-section (Eq. 18 / 19): power spectrum along one axis.
+
+    k: (n,) spatial frequencies, rad/m. power: (n,) texture POWER spectral
+    density there (signal units^2 per rad/m, relative). log_power_err: (n,)
+    one-sigma error of log(power) (spectral noise and the v, a uncertainty).
+    """
+
+    k: np.ndarray
+    power: np.ndarray
+    log_power_err: np.ndarray
+
+
+@dataclasses.dataclass
+class FitResult:
+    """Everything a fit found, with error bars, and why not where it could not.
+
+    Speeds in m/s, lengths in m. ``None`` means not determined (see ``message``).
+    ``a_lower`` is a 95 % lower bound on the contact radius when the window is
+    too weak to measure it; ``vx_upper``/``vy_upper`` 95 % upper bounds when a
+    component is consistent with zero.
+    """
+
+    vx: float | None = None
+    vx_err: float | None = None
+    vy: float | None = None
+    vy_err: float | None = None
+    a: float | None = None
+    a_err: float | None = None
+    a_lower: float | None = None
+    vx_upper: float | None = None
+    vy_upper: float | None = None
+    contact_depth: float | None = None
+    contact_depth_err: float | None = None
+    gain_ratio: float | None = None
+    gain_ratio_err: float | None = None
+    gain_ratio_y: float | None = None
+    gain_ratio_y_err: float | None = None
+    k0x: float | None = None
+    k0y: float | None = None
+    model: str = "joint-2d"
+    window: str = "gaussian"
+    converged: bool = False
+    status: str = "ok"
+    message: str = ""
+    file: str | None = None
+    index: int = 0
+    redchi: float | None = None
+    chi2: float | None = None
+    n_bins: int = 0
+    n_params: int = 0
+    cond: float | None = None
+    aic: float | None = None
+    bic: float | None = None
+    solver: str = "optimistix"
+    precision: str = "float64"
+    names: tuple = ()
+    correlations: np.ndarray | None = None
+    texture_x: TextureSection | None = None
+    texture_y: TextureSection | None = None
+    curvature_radius: float | None = None
+    spectrum: dict | None = dataclasses.field(default=None, repr=False)
+    truth: dict = dataclasses.field(default_factory=dict)
+    warnings: list = dataclasses.field(default_factory=list)
+    problem: FitProblem | None = dataclasses.field(default=None, repr=False)
+    data: Any = dataclasses.field(default=None, repr=False)
+    posterior: Any = dataclasses.field(default=None, repr=False)
+
+    def to_record(self) -> dict:
+        """One flat row of the data contract (JSON/CSV ready: floats, bools, str, None)."""
+        row = {name: _plain(getattr(self, name)) for name in RESULT_FIELDS}
+        for extra in ("a_lower", "vx_upper", "vy_upper", "gain_ratio_y", "gain_ratio_y_err", "redchi", "n_bins",
+                      "cond", "aic", "bic", "solver", "precision"):
+            row[extra] = _plain(getattr(self, extra))
+        if self.posterior is not None:
+            row.update(self.posterior_record())
+        return row
+
+    def posterior_record(self) -> dict:
+        post = self.posterior
+        out = {"mcmc_acceptance": float(post.acceptance_fraction), "mcmc_ess": float(post.ess),
+               "mcmc_tau_max": float(np.nanmax(post.tau)) if np.size(post.tau) else None,
+               "mcmc_warnings": "; ".join(post.warnings)}
+        for name, s in post.summary().items():
+            out[f"{name}_post_mean"] = float(s["mean"])
+            out[f"{name}_post_sd"] = float(s["sd"])
+        return out
+
+
+def _plain(v):
+    if isinstance(v, (np.floating, np.integer)):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+# --------------------------------------------------------------------------- bands
+
+
+def leakage_only(psd, half_width: int = 3, drop_db: float = 20.0):
+    """Bins whose PSD is ``drop_db`` below the highest within +/- ``half_width`` bins: (..., M) bool.
+
+    Between the lines of a periodic texture the bins hold only the spectral
+    window's leakage from the lines: coherent, but their ratio is the lines'.
+    """
+    p = np.asarray(psd)
+    pad = np.pad(p, [(0, 0)] * (p.ndim - 1) + [(half_width, half_width)], mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(pad, 2 * half_width + 1, axis=-1)
+    local_max = windows.max(axis=-1)
+    return p < local_max * 10.0 ** (-drop_db / 10.0)
+
+
+def _bucket(n: int) -> int:
+    """Round a bin count up to a power of two (at least 32): few shapes, few compilations."""
+    return max(32, 1 << (max(n, 1) - 1).bit_length())
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+
+def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record: int = 0) -> FitResult:
+    """Fit one record of a recording. Raises ``TactileInputError`` for bad input."""
+    validate_recording(rec)
+    one = rec.record(record)
+    src = rec.source or "<recording>"
+    signals = np.asarray(one.signals)
+    precision = "float64" if jax.config.jax_enable_x64 else "float32"
+    if precision == "float64":
+        signals = signals.astype(np.float64)
+    kw = {"nperseg": options.nperseg} if (options.nperseg and options.method == "welch") else {}
+    try:
+        spec = estimate_spectra(signals, one.fs, method=options.method, prewhiten=options.prewhiten, **kw)
+        if options.method == "welch" and not options.nperseg:
+            finer = _resolution_nperseg(spec, one.depths, signals.shape[-1], options)
+            if finer:
+                spec = estimate_spectra(signals, one.fs, method="welch", prewhiten=options.prewhiten, nperseg=finer)
+    except TactileInputError as err:
+        raise err.with_source(src) from None
+    options = _options_from_file(options, one)
+    res = fit_cross_spectra(spec, one.depths, options, curvature_radius=one.curvature_radius)
+    res.file, res.index, res.truth, res.precision = rec.source, record, dict(one.truth), precision
+    return res
+
+
+#: the log ratio may change by at most this much across one bin (resolution of slow slips)
+_MAX_LOG_STEP_PER_BIN = 0.15
+
+
+def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions) -> int | None:
+    """A longer Welch segment when the log ratio falls too fast per bin (slow slips), else None.
+
+    The ratio falls as exp(-(d2 - d1) omega / v): a bin of width d_omega spans
+    (d2 - d1) d_omega / v of log ratio; keep it below 0.15 (up to N / 4 samples).
+    """
+    ratio = amplitude_ratio(spec)
+    band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err))
+    speeds = []
+    for p in range(2):
+        if band[p].sum() >= 3:
+            f = slope_speed(ratio.omega, ratio.log_ratio[p], ratio.log_ratio_err[p], band[p], *depths)
+            if bool(f.ok):
+                speeds.append(float(f.speed))
+    if not speeds:
+        return None
+    nperseg = 2 * (np.asarray(spec.omega).size - 1)
+    d_omega = float(spec.omega[1] - spec.omega[0])
+    step = (depths[1] - depths[0]) * d_omega / max(speeds)
+    if step <= _MAX_LOG_STEP_PER_BIN:
+        return None
+    want = nperseg * step / _MAX_LOG_STEP_PER_BIN
+    cap = 1 << ((n_samples // 4).bit_length() - 1)
+    finer = min(1 << int(math.ceil(math.log2(want))), cap)
+    return finer if finer > nperseg else None
+
+
+def _options_from_file(options: FitOptions, rec) -> FitOptions:
+    if options.velocity is None and rec.velocity is not None:
+        options = dataclasses.replace(options, velocity=tuple(abs(float(v)) for v in rec.velocity))
+    if options.gain_ratio is None and rec.gain_ratio is not None:
+        options = dataclasses.replace(options, gain_ratio=rec.gain_ratio)
+    return options
+
+
+def fit_spectra(data, options: FitOptions = FitOptions()) -> FitResult:
+    """Fit recorded spectra (``io.SpectraData``): PSD/CSD through the joint model, ratios alone per pair."""
+    options = _options_from_file(options, data)
+    omega = np.asarray(data.omega, float)
+    if data.psd is not None and data.csd is not None:
+        m = omega.size
+        d_omega = np.diff(omega)
+        if m < 8 or not np.allclose(d_omega, d_omega[0], rtol=1e-6):
+            raise TactileInputError("fitting PSD/CSD needs at least 8 uniformly spaced omega bins",
+                                    source=data.source, code="bad_shape")
+        k = float(data.n_segments) if data.n_segments else 1.0
+        if not data.n_segments:
+            options_msg = "n_segments not given: errors assume 1 segment (very conservative)"
+        else:
+            options_msg = ""
+        spec = CrossSpectra(jnp.asarray(omega / (2 * np.pi)), jnp.asarray(omega), jnp.asarray(data.psd, float),
+                            jnp.asarray(data.csd, complex), int(round(k)), k, "given")
+        res = fit_cross_spectra(spec, data.depths, options, curvature_radius=data.curvature_radius)
+        if options_msg:
+            res.warnings.append(options_msg)
+        res.file = data.source
+        return res
+    return _fit_ratio_only(data, options)
+
+
+def _fit_ratio_only(data, options: FitOptions) -> FitResult:
+    """Ratios without PSDs: each pair's exact R curve on its own (the fast path)."""
+    d1, d2 = data.depths
+    omega = np.asarray(data.omega, float)
+    log_ratio = np.log(np.asarray(data.ratio, float))
+    err = np.asarray(data.ratio_err, float) if data.ratio_err is not None else np.full_like(log_ratio, 0.1)
+    res = FitResult(model="pair", file=data.source, solver=options.solver)
+    gains = _gains(options)
+    fits = []
+    if data.ratio_err is None:
+        res.warnings.append("no ratio_err given: every finite bin is used with a guessed error of 0.1, "
+                            "rescaled by the reduced chi-square")
+    for p in range(2):
+        mask = np.isfinite(log_ratio[p]) & np.isfinite(err[p]) & (omega > 0) & (err[p] <= options.max_err)
+        if mask.sum() < 4:
+            fits.append(None)
+            continue
+        fits.append(fit_pair(omega, log_ratio[p], err[p], mask, d1, d2, gain_ratio=gains[p], fit_gain=options.fit_gain,
+                             solver=options.solver, speed0=None if options.velocity is None else max(options.velocity[p], 1e-4)))
+    if all(f is None for f in fits):
+        res.status, res.message = "no_band", "fewer than 4 finite ratio bins in either pair"
+        return res
+    fx, fy = fits
+    if fx is not None:
+        res.vx, res.vx_err = fx.speed, fx.speed_err
+    if fy is not None:
+        res.vy, res.vy_err = fy.speed, fy.speed_err
+    best = min((f for f in fits if f is not None), key=lambda f: f.a_err / f.a if f.a > 0 else np.inf)
+    res.a, res.a_err = best.a, best.a_err
+    res.converged = all(f.converged for f in fits if f is not None)
+    if not res.converged:
+        res.status = "not_converged"
+    res.redchi = float(np.mean([f.redchi for f in fits if f is not None]))
+    res.n_bins = int(sum(f.n_bins for f in fits if f is not None))
+    res.gain_ratio = fx.gain_ratio if fx is not None else gains[0]
+    res.gain_ratio_err = fx.gain_ratio_err if fx is not None else None
+    res.gain_ratio_y = fy.gain_ratio if fy is not None else gains[1]
+    res.gain_ratio_y_err = fy.gain_ratio_err if fy is not None else None
+    _contact_depth(res, data.curvature_radius)
+    res.message = ("ratios only: each pair fitted alone with the exact R curve (valid for slip along one axis "
+                   "or a large contact; under oblique slip with a small contact the smaller speed is pulled "
+                   "toward the larger)")
+    return res
+
+
+def _gains(options: FitOptions) -> tuple[float, float]:
+    g = options.gain_ratio
+    if g is None:
+        return 1.0, 1.0
+    g = np.atleast_1d(np.asarray(g, float))
+    return (float(g[0]), float(g[-1]))
+
+
+def fit_cross_spectra(spec: CrossSpectra, depths, options: FitOptions = FitOptions(), *,
+                      curvature_radius=None) -> FitResult:
+    """Fit the joint model to estimated spectra. Never raises for a fit that fails: see ``status``."""
+    try:
+        return _fit_cross_spectra(spec, depths, options, curvature_radius)
+    except TactileInputError:
+        raise
+    except Exception as err:  # a bug or a numerical corner must not sink a batch: report it as data
+        return FitResult(window=options.window, solver=options.solver, status="failed",
+                         message=f"the fit failed: {type(err).__name__}: {' '.join(str(err).split())}")
+
+
+def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
+    d1, d2 = (float(v) for v in depths)
+    res = FitResult(window=options.window, solver=options.solver)
+    if options.window != "gaussian":
+        res.status = "unsupported"
+        res.message = f"the joint model has the Gaussian window only; window {options.window!r} is not fitted"
+        return res
+    ratio = amplitude_ratio(spec)
+    band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err,
+                                  fmin=options.fmin, fmax=options.fmax))
+    psd = np.asarray(spec.psd)
+    shallow = psd[[0, 2]]
+    leak = leakage_only(shallow, drop_db=options.leakage_db)
+    n_leak = int((band & leak).sum())
+    band = band & ~leak
+    omega = np.asarray(spec.omega)
+    if band.sum() < 6:
+        res.status = "no_band"
+        res.message = (f"only {int(band.sum())} usable bins (coherent, deep probe above noise, not leakage): "
+                       "too few to fit; check the gains, the SNR or the band limits")
+        return res
+    used = np.flatnonzero(band.any(axis=0))
+    i0 = max(int(used[0]), 1)
+    length = _bucket(int(used[-1]) - i0 + 1)
+    idx = np.arange(i0, i0 + length)
+    valid = idx < omega.size
+    idx = np.where(valid, idx, omega.size - 1)
+    d_omega = float(omega[1] - omega[0])
+    om = i0 * d_omega + d_omega * np.arange(length)        # bins (extrapolated past the end if needed)
+    offsets, weights = (np.asarray(v, float) for v in spec.kernel)
+    # a fixed grid margin (bins) so every kernel gives the same shapes: one compilation
+    half = max(float(np.max(np.abs(offsets))), _GRID_MARGIN)
+    grid = np.arange(om[0] - half * d_omega, om[-1] + (half + 0.25) * d_omega, 0.5 * d_omega)
+    kernel = np.zeros((length, grid.size))
+    for o, w in zip(offsets, weights):
+        pos = np.rint(((om + o * d_omega) - grid[0]) / (0.5 * d_omega)).astype(int)
+        kernel[np.arange(length), pos] += w
+    ratio_np = (np.asarray(ratio.log_ratio), np.asarray(ratio.log_ratio_err))
+    mask_h = band[:, idx] & valid
+    log_s11 = np.log(np.clip(shallow[:, idx], 1e-300, None))
+    lr = np.where(mask_h, ratio_np[0][:, idx], 0.0)
+    lr_err = np.where(mask_h, ratio_np[1][:, idx], 1.0)
+
+    # ---- starting values: each pair alone (closed form, then exact R curve)
+    gains = _gains(options)
+    starts = []
+    for p in range(2):
+        sel = band[p]
+        if sel.sum() >= 5:
+            f = fit_pair(omega, ratio_np[0][p], ratio_np[1][p], sel, d1, d2, gain_ratio=gains[p],
+                         kernel=spec.kernel)
+            starts.append(f if (f.converged and np.isfinite(f.speed)) else None)
+        else:
+            starts.append(None)
+    if options.velocity is not None:
+        v0 = [max(abs(float(v)), 0.0) for v in options.velocity]
+    else:
+        v0 = [s.speed if s is not None else np.nan for s in starts]
+        known = [v for v in v0 if np.isfinite(v)]
+        fallback = 0.05 * max(known) if known else 0.02
+        v0 = [v if np.isfinite(v) else fallback for v in v0]
+    a_fits = [s for s in starts if s is not None and np.isfinite(s.a) and s.a_err > 0]
+    a0 = min(a_fits, key=lambda s: s.a_err / s.a).a if a_fits else 2e-3
+    a0 = float(np.clip(a0, 2 * _A_BOUNDS[0], 0.5 * _A_BOUNDS[1]))
+    v_scale = max(max(v0), 1e-4)
+    v_fixed_floor = 1e-3 * v_scale                          # a known zero component, in log space
+    log_v0 = [np.log(max(v, v_fixed_floor if options.velocity is not None else 1e-3 * v_scale)) for v in v0]
+
+    # ---- texture knots and their start from the shallow spectrum of the faster pair that has a band
+    with_band = [p for p in range(2) if band[p].sum() >= 1]
+    main = max(with_band, key=lambda p: v0[p])
+    k_lo = 0.5 * om[0] / max(v0)
+    k_hi = 25.0 / (2.0 * d1)
+    knots = np.geomspace(k_lo, max(k_hi, 4 * k_lo), options.n_knots)
+    sel = band[main]
+    k_obs = omega[sel] / v0[main]
+    g1 = np.asarray(_log_g(k_obs, d1, a0))
+    phi_obs = np.log(np.clip(shallow[main][sel], 1e-300, None)) + np.log(v0[main]) - 2 * g1 - np.log(np.sqrt(3 * np.pi) / a0)
+    log_phi0 = np.interp(np.log(knots), np.log(k_obs), phi_obs)
+    noise0 = float(np.log(np.median(shallow[:, -omega.size // 4:]) + 1e-300))
+
+    theta0 = np.concatenate([[log_v0[0], log_v0[1], np.log(a0), np.log(gains[0]), np.log(gains[1]), 0.0,
+                              noise0 if options.noise_floor else -700.0], log_phi0])
+    names = jm.param_names(options.n_knots)
+    free = np.ones(theta0.size, bool)
+    if options.velocity is not None:
+        free[[0, 1]] = False
+    if not options.fit_gain:
+        free[[3, 4]] = False
+    if not options.noise_floor:
+        free[6] = False
+    if not band[1].any():
+        free[5] = False                                     # nothing measures the y pair's level
+    s11_weight = np.sqrt(spec.dof / max(spec.bin_factor, 1.0))
+    # weak priors: a factor e^3 on speeds and radius around the single-pair starts, e^2 on fitted gains
+    prior_inv_sd = np.zeros(theta0.size)
+    prior_inv_sd[[0, 1, 2]] = 1.0 / 3.0
+    prior_inv_sd[[3, 4]] = 0.5
+    prior_inv_sd = np.where(free, prior_inv_sd, 0.0)
+    if spec.whitening is not None:
+        fs = jnp.asarray(spec.fs)
+        white_grid = np.log(np.asarray(filter_gain(spec.whitening, jnp.asarray(np.abs(grid)), fs)))
+        white_bin = np.log(np.asarray(filter_gain(spec.whitening, jnp.asarray(om), fs)))
+    else:
+        white_grid, white_bin = np.zeros((2, grid.size)), np.zeros((2, length))
+    data = jm.ModelData(jnp.asarray(om), jnp.asarray(log_s11), jnp.asarray(lr), jnp.asarray(lr_err),
+                        jnp.asarray(mask_h), jnp.asarray(mask_h), jnp.asarray(s11_weight),
+                        jnp.asarray(np.abs(grid)), jnp.asarray(kernel), jnp.asarray(np.log(knots)),
+                        jnp.asarray([d1, d2]), jnp.asarray(theta0), jnp.asarray(prior_inv_sd), jnp.asarray(1.0 / options.smoothness),
+                        jnp.asarray(white_grid), jnp.asarray(white_bin))
+    n_prior = jm.n_prior_residuals(theta0.size)
+    # Several starts for the speeds: the single-pair fits mistake a pair that hears only window
+    # leakage (slip across it) for a fast slip along it, so also try each axis as the major one.
+    starts_v = [tuple(log_v0[:2])]
+    if options.velocity is None:
+        power = [float(np.sum(shallow[p][band[p]])) for p in range(2)]
+        for major in (int(np.argmax(power)), int(np.argmin(power))):
+            v_major = v0[major] if np.isfinite(v0[major]) else max(v0)
+            cand = [np.log(v_major), np.log(v_major)]
+            cand[1 - major] = np.log(0.15 * v_major)
+            if all(np.max(np.abs(np.subtract(cand, c))) > 0.3 for c in starts_v):
+                starts_v.append(tuple(cand))
+    fit = None
+    for log_vs in starts_v:
+        th0 = theta0.copy()
+        th0[:2] = log_vs
+        # stage 1: texture spectrum and y level with the physics held at the starting values
+        stage1 = free.copy()
+        stage1[:5] = False
+        stage1[6] = False
+        fit1 = least_squares(jm.residuals, jnp.asarray(th0), data, jnp.asarray(stage1), solver="optimistix",
+                             max_steps=256, n_prior=n_prior)
+        theta1 = np.where(np.isfinite(np.asarray(fit1.theta)), np.asarray(fit1.theta), th0)
+        trial = least_squares(jm.residuals, jnp.asarray(theta1), data, jnp.asarray(free), solver=options.solver,
+                              max_steps=256, n_prior=n_prior)
+        if fit is None or (np.isfinite(float(trial.chi2)) and float(trial.chi2) < float(fit.chi2)):
+            fit = trial
+    res.n_bins = int(mask_h.sum())
+    res.spectrum = {"omega": om, "log_ratio": np.where(valid, ratio_np[0][:, idx], np.nan),
+                    "log_ratio_err": np.where(valid, ratio_np[1][:, idx], np.nan), "mask": mask_h}
+    if n_leak:
+        res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")
+    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, scale_from=fit)
+    res.data = data
+    # dominant wavenumbers (Eq. 4 / 17) where a pair's shallow spectrum has a single dominant line
+    for p, attr in ((0, "k0x"), (1, "k0y")):
+        k0 = _dominant(shallow[p], ratio_np[0][p], band[p], d1, d2, gains[p])
+        setattr(res, attr, k0)
+    return res
+
+
+def _dominant(psd, log_ratio, band, d1, d2, gain):
+    """Eq. 4 / 17 at the spectral peak when one line carries most of the band's power, else None."""
+    if band.sum() < 1:
+        return None
+    p = np.where(band, psd, 0.0)
+    i = int(np.argmax(p))
+    lo, hi = max(i - 2, 0), i + 3
+    # a line: most of the band's power within +/- 2 bins, and a peak (not the edge of a falling spectrum)
+    if p[lo:hi].sum() < 0.5 * p.sum() or band.sum() < 3 or i < 3 or i + 3 >= psd.size:
+        return None
+    if not (psd[i] > 10 * psd[i - 3] and psd[i] > 10 * psd[i + 3]):
+        return None
+    return float(dominant_wavenumber(1.0, np.exp(log_ratio[i]) / gain, d1, d2))
+
+
+def _contact_depth(res: FitResult, curvature_radius):
+    r = float(curvature_radius) if curvature_radius else PAPER_SENSOR.curvature_radius
+    res.curvature_radius = r
+    if res.a is not None:
+        res.contact_depth = res.a ** 2 / r
+        res.contact_depth_err = None if res.a_err is None else 2 * res.a * res.a_err / r
+    if not curvature_radius:
+        res.warnings.append(f"curvature_radius not given: contact depth assumes R = {1e3 * r:g} mm")
+
+
+def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius, scale_from):
+    theta = np.asarray(fit.theta)
+    # lsq scales the covariance by redchi; we only let it inflate: a redchi below 1 here comes from
+    # per-bin errors that overestimate the noise (coherence lost to resolution, not to noise), and
+    # shrinking every error bar by it under-covers (benchmarks/coverage.py)
+    redchi = float(fit.redchi)
+    cov = np.asarray(fit.cov) * (max(redchi, 1.0) / redchi if redchi > 0 else 1.0)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    res.converged = bool(fit.converged)
+    res.redchi, res.chi2 = float(fit.redchi), float(fit.chi2)
+    res.cond = float(fit.cond)
+    n_free = int(free.sum())
+    res.n_params = n_free
+    n = float(fit.n_data)
+    res.aic = float(n * np.log(max(res.chi2, 1e-300) / max(n, 1)) + 2 * n_free)
+    res.bic = float(n * np.log(max(res.chi2, 1e-300) / max(n, 1)) + np.log(max(n, 1)) * n_free)
+    res.names = tuple(names)
+    fidx = np.flatnonzero(free)
+    sub = cov[np.ix_(fidx, fidx)]
+    dsd = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
+    res.correlations = sub / np.outer(dsd, dsd)
+    notes = []
+    if not res.converged:
+        res.status = "not_converged"
+        notes.append(f"the solver did not converge ({options.solver})")
+    if not np.all(np.isfinite(theta)) or not np.isfinite(res.chi2):
+        res.status = "failed"
+        res.message = "the fit produced non-finite values"
+        return
+    vx, vy, a = np.exp(theta[:3])
+    # speeds: fixed ones report their value with no error
+    for i, (name, v) in enumerate((("vx", vx), ("vy", vy))):
+        if not free[i]:
+            known = options.velocity[i] if options.velocity is not None else v
+            setattr(res, name, float(abs(known)))
+            setattr(res, name + "_err", None)
+            continue
+        err = float(v * sd[i])
+        setattr(res, name, float(v))
+        setattr(res, name + "_err", err)
+        if err > v or v < 1e-3 * max(vx, vy):
+            upper = _profile_bound(fit, data, free, options, i, theta[i], direction=+1, scale=max(res.redchi, 1.0))
+            if upper is not None and upper > _V_BOUNDS[1]:
+                upper = None
+            setattr(res, name + "_upper", upper)
+            notes.append(f"{name} is consistent with 0 (95 % upper bound {_fmt_speed(upper)})" if upper else
+                         f"{name} is not determined (consistent with 0)")
+    # contact radius
+    a_err = float(a * sd[2])
+    if a_err > 0.5 * a or a > 0.5 * _A_BOUNDS[1]:
+        lower = _profile_bound(fit, data, free, options, 2, theta[2], direction=-1, scale=max(res.redchi, 1.0))
+        res.a, res.a_err, res.a_lower = None, None, lower
+        notes.append("the contact window is too weak to measure a: "
+                     f"a > {1e3 * lower:.3g} mm (95 % lower bound)" if lower else
+                     "the contact window is too weak to measure a")
+    else:
+        res.a, res.a_err = float(a), a_err
+    # gains
+    for i, (name, name_err) in ((3, ("gain_ratio", "gain_ratio_err")), (4, ("gain_ratio_y", "gain_ratio_y_err"))):
+        g = float(np.exp(theta[i]))
+        setattr(res, name, g)
+        setattr(res, name_err, float(g * sd[i]) if free[i] else None)
+    _contact_depth(res, curvature_radius)
+    if res.cond > 1e10:
+        notes.append(f"near-degenerate parameters (condition number {res.cond:.2g}): see the correlations")
+    res.message = "; ".join(notes)
+    # texture cross-sections along x and y (Eq. 18 / 19)
+    try:
+        res.texture_x, res.texture_y = _texture_sections(theta, cov, data)
+    except Exception as err:  # pragma: no cover - reporting extra, never fatal
+        res.warnings.append(f"texture cross-sections not computed: {err}")
+    res.problem = FitProblem(
+        residuals=jm.residuals, args=data, theta=theta, free=tuple(bool(f) for f in free), names=tuple(names),
+        lower=_lower(len(theta)), upper=_upper(len(theta)), cov=cov, scale=max(res.redchi, 1.0),
+        to_physical=_to_physical(curvature_radius))
+
+
+def _lower(p):
+    lo = np.full(p, -np.inf)
+    lo[:3] = [np.log(_V_BOUNDS[0]), np.log(_V_BOUNDS[0]), np.log(_A_BOUNDS[0])]
+    lo[3:5] = np.log(1e-3)
+    return lo
+
+
+def _upper(p):
+    hi = np.full(p, np.inf)
+    hi[:3] = [np.log(_V_BOUNDS[1]), np.log(_V_BOUNDS[1]), np.log(_A_BOUNDS[1])]
+    hi[3:5] = np.log(1e3)
+    return hi
+
+
+def _to_physical(curvature_radius):
+    r = float(curvature_radius) if curvature_radius else PAPER_SENSOR.curvature_radius
+
+    def to_physical(theta):
+        theta = np.asarray(theta)
+        a = np.exp(theta[..., 2])
+        return {"vx": np.exp(theta[..., 0]), "vy": np.exp(theta[..., 1]), "a": a,
+                "contact_depth": a ** 2 / r, "gain_ratio": np.exp(theta[..., 3]),
+                "gain_ratio_y": np.exp(theta[..., 4])}
+
+    return to_physical
+
+
+def _fmt_speed(v):
+    return "n/a" if v is None else f"{100 * v:.3g} cm/s"
+
+
+def _profile_bound(fit, data, free, options, i, start, *, direction, scale, delta=2.71, n_max=24):
+    """One-sided 95 % profile-likelihood bound of parameter i (log space) from the best fit.
+
+    Steps log-parameter i away from the fit (direction -1: down, +1: up) with
+    the other free parameters refitted, until chi2 rises by ``delta * scale``;
+    returns exp of the crossing (interpolated), or the last value tried.
+    """
+    free_others = np.asarray(free).copy()
+    free_others[i] = False
+    n_prior = jm.n_prior_residuals(len(free_others))
+    chi0 = float(fit.chi2)
+    theta = np.asarray(fit.theta).copy()
+    prev_x, prev_c = start, chi0
+    step = 0.1
+    x = start
+    for _ in range(n_max):
+        x = x + direction * step
+        theta[i] = x
+        f = least_squares(jm.residuals, jnp.asarray(theta), data, jnp.asarray(free_others), solver="optimistix",
+                          max_steps=256, n_prior=n_prior)
+        c = float(f.chi2)
+        if np.isfinite(c) and c - chi0 >= delta * scale:
+            frac = (delta * scale - (prev_c - chi0)) / max(c - prev_c, 1e-12)
+            return float(np.exp(prev_x + frac * (x - prev_x)))
+        if np.isfinite(c):
+            theta = np.asarray(f.theta).copy()
+            prev_x, prev_c = x, c
+        step *= 1.5
+    return float(np.exp(x)) if direction < 0 else None
+
+
+def _log_phi_axis(th, data):
+    """log Phi(k = omega / |v_p|) - model log S11_p(omega) for both pairs: (2, L)."""
+    s11, _ = jm.log_spectra(th, data)
+    v = jnp.exp(th[:2])
+    k = data.omega[None, :] / v[:, None]
+    lphi = jnp.interp(jnp.log(k), data.log_k_knots, th[jm.N_FIXED_PARAMS:])
+    return lphi - s11
+
+
+@jax.jit
+def _section_terms(theta, data):
+    return _log_phi_axis(theta, data), jax.jacfwd(_log_phi_axis)(theta, data)
+
+
+def _texture_sections(theta, cov, data):
+    """Eq. 18/19: data/model ratio of the shallow PSD times the model Phi, on k = omega / |v_axis|."""
+    base, jac = (np.asarray(t) for t in _section_terms(jnp.asarray(theta), data))        # (2, L), (2, L, P)
+    var_theta = np.einsum("plk,km,plm->pl", jac, cov, jac)
+    spec_var = 1.0 / float(data.s11_weight) ** 2
+    sections = []
+    v = np.exp(theta[:2])
+    for p in range(2):
+        m = np.asarray(data.mask_s11[p])
+        k = np.asarray(data.omega)[m] / v[p]
+        logp = base[p][m] + np.asarray(data.log_s11[p])[m]
+        err = np.sqrt(np.clip(var_theta[p][m], 0, None) + spec_var)
+        sections.append(TextureSection(k, np.exp(logp), err) if m.any() else None)
+    return tuple(sections)
+
+
+@jax.jit
+def _ratio_terms(theta, data):
+    def h(th):
+        return jm.log_spectra(th, data)[1]
+    return h(theta), jax.jacfwd(h)(theta)
+
+
+def model_curves(result: FitResult) -> dict | None:
+    """Measured and fitted log|P2/P1| of both pairs for plots (Fig. 7 style).
+
+    Returns dict with ``omega`` (L,) rad/s; ``log_ratio``, ``log_ratio_err``,
+    ``mask`` (2, L) measured; ``model`` (2, L) at the fit and ``model_sd``
+    (2, L) its one-sigma band from the Laplace covariance; None when the fit
+    has no joint-model data (ratio-only input or a failed fit).
+    """
+    if result.problem is None or result.data is None:
+        return None
+    data = result.data
+    theta = np.asarray(result.problem.theta)
+    model, jac = (np.asarray(t) for t in _ratio_terms(jnp.asarray(theta), data))
+    var = np.einsum("plk,km,plm->pl", jac, np.asarray(result.problem.cov), jac)
+    measured = result.spectrum or {"log_ratio": np.asarray(data.log_h), "log_ratio_err": np.asarray(data.h_err)}
+    return {"omega": np.asarray(data.omega), "log_ratio": np.asarray(measured["log_ratio"]),
+            "log_ratio_err": np.asarray(measured["log_ratio_err"]), "mask": np.asarray(data.mask_h),
+            "model": model, "model_sd": np.sqrt(np.clip(var, 0, None))}

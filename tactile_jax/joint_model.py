@@ -1,0 +1,194 @@
+"""The joint model of both probe pairs under 2-D slip through a Gaussian window (DESIGN.md).
+
+A texture of isotropic power spectrum Phi(|k|) slides at (vx, vy); a mode k
+rings at omega = k . v. The expected auto- and cross-spectra of a pair are
+line integrals over the line k . v = omega in the k-plane,
+
+    E[S_ab(omega)] = Int Phi(|k|) G(k_s; d_a, a) G(k_s; d_b, a) L(k_p; a)^2 dk / |v_u|,
+
+with k_s the pair's sensitive axis, k_p the other one, G the normalised
+window-depth response of ``r_curve.log_g`` and L^2 = exp(-a^2 k_p^2 / 3)
+the window's spectrum across the probe. The line is parametrised by ky when
+|vx| >= |vy| and by kx otherwise (u, with the other component solved from the
+line; |v_u| is the speed along the other axis), on Gauss-Legendre nodes over
+the interval where the integrand is above exp(-25) of its reach, split at the
+kink of |k_s|. Everything is in log space.
+
+The measured quantities are modelled as the estimator sees them: each bin's
+expectation is the spectral-window average (``CrossSpectra.kernel``) of the
+densities on a half-bin grid, so the resolution bias of steep spectra is
+part of the model, not of the error.
+
+Parameters (a flat vector, ``PARAMS`` order): log|vx|, log|vy| (m/s),
+log a (m), log gx, log gy (deep/shallow gain ratios of the pairs), log ay
+(gain of the y pair's shallow probe relative to x1), log noise (shallow
+white noise floor, units^2/Hz) and log Phi at ``n_knots`` log-spaced
+wavenumbers (rad/m).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import logsumexp
+
+from ._quadrature import gauss_legendre
+from .r_curve import log_g
+
+__all__ = ["PARAMS", "N_FIXED_PARAMS", "ModelData", "param_names", "log_spectra", "residuals", "n_prior_residuals"]
+
+#: names of the leading parameters; ``log_phi_j`` follow for the texture knots
+PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise")
+N_FIXED_PARAMS = len(PARAMS)
+
+_LOG_EDGE = 25.0        # integrand reach: exp(-25) of its peak factor
+_N_NODES = 24           # Gauss-Legendre nodes per side of the kink
+
+
+def param_names(n_knots: int) -> tuple[str, ...]:
+    return PARAMS + tuple(f"log_phi_{j}" for j in range(n_knots))
+
+
+class ModelData(NamedTuple):
+    """Everything the residuals need besides the parameters (a pytree of arrays).
+
+    omega: (L,) bin frequencies of the fitted window of bins, rad/s.
+    log_s11: (2, L) measured log shallow PSDs of the x and y pairs.
+    log_h: (2, L) measured log|S12| / S11 (log AMPLITUDE ratio) of the pairs.
+    h_err: (2, L) one-sigma errors of log_h.
+    mask_s11, mask_h: (2, L) bins used for each kind of residual.
+    s11_weight: scalar, 1 / sd of log PSD residuals (sqrt(K / bin_factor)).
+    grid_omega: (F,) half-bin grid (rad/s) on which densities are evaluated.
+    kernel: (L, F) spectral-window weights from the grid to each bin.
+    log_k_knots: (n_knots,) log wavenumbers of the texture knots.
+    depths: (2,) d1, d2 in metres.
+    prior_center, prior_inv_sd: (P,) weak Gaussian priors on the internal
+        parameters (inverse sd 0: none); they keep directions the data do not
+        see (a speed component near 0, a huge contact) finite.
+    smooth_inv_sd: inverse sd of the second differences of log Phi between
+        knots (a smoothness prior where the data do not reach).
+    log_white_grid, log_white_bin: (2, F), (2, L) log |A|^2 of each pair's
+        prewhitening filter on the grid and at the bins (zeros without one):
+        the estimator averaged S |A|^2 over its window and divided by |A|^2.
+    """
+
+    omega: jax.Array
+    log_s11: jax.Array
+    log_h: jax.Array
+    h_err: jax.Array
+    mask_s11: jax.Array
+    mask_h: jax.Array
+    s11_weight: jax.Array
+    grid_omega: jax.Array
+    kernel: jax.Array
+    log_k_knots: jax.Array
+    depths: jax.Array
+    prior_center: jax.Array
+    prior_inv_sd: jax.Array
+    smooth_inv_sd: jax.Array
+    log_white_grid: jax.Array
+    log_white_bin: jax.Array
+
+
+def _interval_nodes(lo, hi, kink):
+    """GL nodes/weights on [lo, kink] and [kink, hi] (kink clipped into [lo, hi]); (..., 2n)."""
+    x, w = gauss_legendre(_N_NODES)
+    x = jnp.asarray(x)
+    w = jnp.asarray(w)
+    hi = jnp.maximum(hi, lo)
+    kink = jnp.clip(kink, lo, hi)
+    def panel(a, b):
+        half = 0.5 * (b - a)
+        return (0.5 * (a + b))[..., None] + half[..., None] * x, half[..., None] * w
+    u1, w1 = panel(lo, kink)
+    u2, w2 = panel(kink, hi)
+    return jnp.concatenate([u1, u2], -1), jnp.concatenate([w1, w2], -1)
+
+
+def _range(omega, v_along, v_across, limit):
+    """Values of u for which |(omega - u * v_across) / v_along| <= limit (all u if v_across == 0)."""
+    safe = jnp.where(v_across > 0, v_across, 1.0)
+    lo = jnp.where(v_across > 0, (omega - limit * v_along) / safe, -jnp.inf)
+    hi = jnp.where(v_across > 0, (omega + limit * v_along) / safe, jnp.inf)
+    return lo, hi
+
+
+def _log_phi(kx, ky, log_k_knots, log_phi):
+    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + 1e-300)
+    return jnp.interp(log_k, log_k_knots, log_phi)
+
+
+def _pair_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi):
+    """log E[S11], log E[S12] (without gains) of the x and y pairs at omega (F,): each (2, F)."""
+    k_g = _LOG_EDGE / (2.0 * d1)                 # |k_s| where G(k_s; d1)^2 < exp(-25)
+    k_l = (3.0 * _LOG_EDGE) ** 0.5 / a           # |k_p| where L^2 < exp(-25)
+    by_ky = vx >= vy                             # parametrise by ky (solve kx) or by kx
+    v_u = jnp.where(by_ky, vx, vy)               # speed along the solved axis: Jacobian 1 / v_u
+    v_o = jnp.where(by_ky, vy, vx)
+    om = omega
+    # branch "s": the pair whose sensitive axis is the solved component (u is its k_p, limited by L);
+    # branch "u": the pair whose sensitive axis is u itself (the solved component limited by L)
+    lo_s, hi_s = _range(om, v_u, v_o, k_g)
+    lo_s, hi_s = jnp.maximum(lo_s, -k_l), jnp.minimum(hi_s, k_l)
+    kink_s = jnp.where(v_o > 0, om / jnp.where(v_o > 0, v_o, 1.0), jnp.inf)
+    lo_u, hi_u = _range(om, v_u, v_o, k_l)
+    lo_u, hi_u = jnp.maximum(lo_u, -k_g), jnp.minimum(hi_u, k_g)
+    lo, hi = jnp.stack([lo_s, lo_u]), jnp.stack([hi_s, hi_u])               # (2, F)
+    kink = jnp.stack([kink_s, jnp.zeros_like(om)])
+    u, w = _interval_nodes(lo, hi, kink)                                     # (2, F, 2n)
+    solved = (om[:, None] - u * v_o) / v_u
+    sensitive_is_u = jnp.array([False, True])[:, None, None]
+    k_s = jnp.where(sensitive_is_u, u, solved)
+    k_p = jnp.where(sensitive_is_u, solved, u)
+    lg1 = log_g(k_s, d1, a)
+    lg2 = log_g(k_s, d2, a)
+    base = (_log_phi(u, solved, log_k_knots, log_phi) - jnp.square(a * k_p) / 3.0
+            + jnp.log(jnp.clip(w, 1e-300, None)) - jnp.log(v_u))
+    empty = (hi <= lo)[..., None]
+    base = jnp.where(empty | (w <= 0), -2e4, base)                         # finite: keeps gradients NaN-free
+    s11 = jnp.maximum(logsumexp(base + 2.0 * lg1, axis=-1), -1e4)           # (2, F); an empty line: tiny
+    s12 = jnp.maximum(logsumexp(base + lg1 + lg2, axis=-1), -1e4)
+    # by_ky: the x pair is branch "s" (its sensitive kx is solved), the y pair branch "u"; else swapped
+    order = jnp.where(by_ky, jnp.array([0, 1]), jnp.array([1, 0]))
+    return s11[order], s12[order]
+
+
+def log_spectra(theta, data: ModelData):
+    """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, as the estimator sees them."""
+    vx, vy, a = jnp.exp(theta[0]), jnp.exp(theta[1]), jnp.exp(theta[2])
+    log_gains = jnp.stack([theta[3], theta[4]])
+    log_amp = jnp.stack([0.0, theta[5]])
+    log_noise = theta[6]
+    log_phi = theta[N_FIXED_PARAMS:]
+    d1, d2 = data.depths[0], data.depths[1]
+    s11, s12 = _pair_log_densities(data.grid_omega, vx, vy, a, d1, d2, data.log_k_knots, log_phi)
+    s11 = s11 + log_amp[:, None]
+    s12 = s12 + log_amp[:, None] + log_gains[:, None]
+    s11 = jnp.logaddexp(s11, log_noise)                          # shallow white noise floor
+    log_kernel = jnp.log(jnp.clip(data.kernel, 1e-300, None))
+    log_kernel = jnp.where(data.kernel > 0, log_kernel, -2e4)
+    white = data.log_white_grid[:, None, :]
+    bin_s11 = logsumexp(log_kernel[None] + s11[:, None, :] + white, axis=-1) - data.log_white_bin   # (2, L)
+    bin_s12 = logsumexp(log_kernel[None] + s12[:, None, :] + white, axis=-1) - data.log_white_bin
+    return bin_s11, bin_s12 - bin_s11
+
+
+def n_prior_residuals(n_params: int) -> int:
+    """How many trailing entries of ``residuals`` are priors (for ``lsq.least_squares(n_prior=...)``)."""
+    return n_params + (n_params - N_FIXED_PARAMS) - 2
+
+
+def residuals(theta, data: ModelData):
+    """Weighted residuals, flat: shallow log PSDs and log amplitude ratios of both pairs (4 L),
+    then the priors (P + n_knots - 2, see ``n_prior_residuals``)."""
+    s11, h = log_spectra(theta, data)
+    r_s = jnp.where(data.mask_s11, (jnp.where(data.mask_s11, data.log_s11, 0.0) - s11) * data.s11_weight, 0.0)
+    err = jnp.where(data.mask_h, data.h_err, 1.0)
+    r_h = jnp.where(data.mask_h, (jnp.where(data.mask_h, data.log_h, 0.0) - h) / err, 0.0)
+    prior = (theta - data.prior_center) * data.prior_inv_sd
+    log_phi = theta[N_FIXED_PARAMS:]
+    smooth = (log_phi[:-2] - 2.0 * log_phi[1:-1] + log_phi[2:]) * data.smooth_inv_sd
+    return jnp.concatenate([r_s.ravel(), r_h.ravel(), prior, smooth])

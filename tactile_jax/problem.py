@@ -1,0 +1,42 @@
+"""A least-squares problem in the form that solvers and samplers share."""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+
+__all__ = ["FitProblem"]
+
+
+class FitProblem(NamedTuple):
+    """A fitted least-squares problem: what a sampler needs to explore around the fit.
+
+    residuals: module-level function ``residuals(theta, args) -> (n,)`` of
+        weighted residuals (zero where masked); the negative log-likelihood is
+        ``0.5 * sum(r**2) / scale``.
+    args: the data pytree passed to ``residuals``.
+    theta: (P,) best-fit parameter vector in the internal (fitting)
+        parametrisation, e.g. log speeds; fixed entries hold their values.
+    free: (P,) which entries are fitted (a sampler explores only these).
+    names: (P,) internal parameter names, e.g. ``"log_vx"``.
+    lower, upper: (P,) bounds of the internal parameters (a flat prior on
+        the free ones inside them).
+    cov: (P, P) Laplace (Gauss-Newton) covariance of ``theta``.
+    scale: likelihood temperature (the reduced chi-square used to scale the
+        covariance, so that sampler and Laplace widths agree).
+    to_physical: function ``(theta (..., P)) -> dict[name, array (...)]`` of
+        the reported physical quantities (m/s, m, ...); vectorised over
+        leading axes with numpy.
+    """
+
+    residuals: Callable
+    args: Any
+    theta: np.ndarray
+    free: tuple
+    names: tuple
+    lower: np.ndarray
+    upper: np.ndarray
+    cov: np.ndarray
+    scale: float
+    to_physical: Callable
