@@ -42,6 +42,7 @@ RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", 
 
 _log_g = jax.jit(log_g)
 _A_BOUNDS = (1e-5, 0.1)
+_POOR_FIT_REDCHI = 4.0          # above: status "poor_fit" (good fits of simulated scenes stay below 3)
 _GRID_MARGIN = 6.0               # bins of model grid beyond the fitted bins (>= any kernel's reach)          # m: contact radii the model is asked to consider
 _V_BOUNDS = (1e-6, 10.0)         # m/s
 
@@ -597,6 +598,11 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
     _contact_depth(res, curvature_radius)
     if res.cond > 1e10:
         notes.append(f"near-degenerate parameters (condition number {res.cond:.2g}): see the correlations")
+    if res.redchi > _POOR_FIT_REDCHI and res.status == "ok":
+        res.status = "poor_fit"
+        notes.insert(0, f"poor fit: reduced chi-square {res.redchi:.1f}; the joint model does not describe these "
+                        "spectra (a line texture, another window, or a wrong basin): check the plot before "
+                        "trusting the numbers")
     res.message = "; ".join(notes)
     # texture cross-sections along x and y (Eq. 18 / 19)
     try:

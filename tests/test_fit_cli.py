@@ -128,8 +128,10 @@ def test_spectra_file_fits_through_the_same_command(scene_file, tmp_path):
     assert res.exit_code == 0, res.output
     assert "[[Variables]]" in res.stdout
     (row,) = read_results(out)
-    assert row["file"] == str(spec) and row["index"] == 0 and row["status"] == "ok"
-    assert math.isfinite(row["vx"]) and row["vx"] == pytest.approx(VX, rel=0.25)   # no resolution-bias model here
+    # spectra files do not carry the estimator's kernel and prewhitening filter, so the joint model
+    # misses the resolution bias and says so ("poor_fit"); see the issue #3 note
+    assert row["file"] == str(spec) and row["index"] == 0 and row["status"] in ("ok", "poor_fit")
+    assert math.isfinite(row["vx"]) and row["vx"] == pytest.approx(VX, rel=0.25)
 
 
 def test_report_says_fixed_and_undetermined():
