@@ -188,7 +188,7 @@ def demo(out_dir, seed, duration, method):
     click.echo(f"  time: {r.seconds:.1f} s (simulation, spectra, fits, figure; JIT compile included)")
 
 
-_FIT_RAN = ("ok", "not_converged")     # statuses of a fit that ran and produced values
+_FIT_RAN = ("ok", "not_converged", "poor_fit")     # statuses of a fit that ran and produced values
 _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`` run
 
 
