@@ -77,7 +77,9 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     res = least_squares(_residuals, theta0, args, jnp.array([True, True, bool(fit_gain)]), solver=solver,
                         bin_factor=float(bin_factor))
     th = np.asarray(res.theta)
-    sd = np.sqrt(np.clip(np.diag(np.asarray(res.cov)), 0, None))
+    redchi = float(res.redchi)
+    inflate = max(redchi, 1.0) / redchi if redchi > 0 else 1.0      # errors only inflate, as in ``fit``
+    sd = np.sqrt(np.clip(np.diag(np.asarray(res.cov)) * inflate, 0, None))
     v, a, g = np.exp(th)
     return PairFit(float(v), float(v * sd[0]), float(a), float(a * sd[1]), float(g),
                    float(g * sd[2]) if fit_gain else None, float(res.redchi), int(res.n_data),
