@@ -499,7 +499,7 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
                     "log_ratio_err": np.where(valid, ratio_np[1][:, idx], np.nan), "mask": mask_h}
     if n_leak:
         res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")
-    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, scale_from=fit)
+    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius)
     res.data = data
     # dominant wavenumbers (Eq. 4 / 17) where a pair's shallow spectrum has a single dominant line
     for p, attr in ((0, "k0x"), (1, "k0y")):
@@ -533,7 +533,7 @@ def _contact_depth(res: FitResult, curvature_radius):
         res.warnings.append(f"curvature_radius not given: contact depth assumes R = {1e3 * r:g} mm")
 
 
-def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius, scale_from):
+def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius):
     theta = np.asarray(fit.theta)
     # lsq scales the covariance by redchi; we only let it inflate: a redchi below 1 here comes from
     # per-bin errors that overestimate the noise (coherence lost to resolution, not to noise), and
