@@ -140,7 +140,10 @@ def spectra(recording, out, method, nperseg, prewhiten, record):
     data = SpectraData(omega=np.asarray(spec.omega), psd=np.asarray(spec.psd), csd=np.asarray(spec.csd),
                        n_segments=float(spec.dof), ratio=np.exp(np.asarray(ratio.log_ratio))[:, 1:],
                        ratio_err=np.asarray(ratio.log_ratio_err)[:, 1:], depths=one.depths,
-                       curvature_radius=one.curvature_radius, velocity=one.velocity, gain_ratio=one.gain_ratio)
+                       curvature_radius=one.curvature_radius, velocity=one.velocity, gain_ratio=one.gain_ratio,
+                       kernel=np.asarray(spec.kernel, float), bin_factor=float(spec.bin_factor),
+                       whitening=None if spec.whitening is None else np.asarray(spec.whitening),
+                       fs=float(one.fs))
     # DC carries no ratio: the ratio arrays start at the first bin, so drop DC from every array
     data = data._replace(omega=data.omega[1:], psd=data.psd[:, 1:], csd=data.csd[:, 1:])
     path = write_spectra(out, data)
@@ -210,9 +213,14 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
               help="Spectral estimator for recordings.")
 @click.option("--solver", type=click.Choice(["optimistix", "jaxopt"]), default="optimistix", show_default=True)
 @click.option("--quiet", is_flag=True, help="No fit reports or progress; errors and the summary only.")
+@click.option("--scene", "scene", type=click.Path(dir_okay=False), default=None,
+              help="Scene recipe (fits/NAME.toml): fit options first from it, explicit flags override.")
+@click.option("--model", "model", default=None,
+              help="Scene model: auto (chosen by BIC), slip, window (default), window+gain, window+noise, "
+                   "window+gain+noise, hertz.")
 @_user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
-        quiet):
+        quiet, scene=None, model=None):
     """Fit slip velocity, contact radius and gains to recordings or spectra files; write one row per record.
 
     FILE is a recording (.h5/.hdf5/.npz with 'signals') or a spectra file (with 'omega').
@@ -240,6 +248,7 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
         raise TactileInputError("--walkers and --steps must be at least 2", code="bad_setting")
     known = None if velocity is None else tuple(abs(v) for v in _floats(velocity, 2, "velocity"))
     options = FitOptions(method=method, velocity=known, fit_gain=fit_gain, noise_floor=noise_floor, solver=solver)
+    options = _scene_options(options, scene, model)
     mcmc_settings = dict(n_walkers=walkers, n_steps=steps, seed=seed) if mcmc else None
 
     rows, failures = [], []
@@ -276,6 +285,27 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
         sys.exit(2)
     if many:
         click.echo(f"{len(rows) - len(failures)} fitted, {len(failures)} failed", err=True)
+
+
+def _scene_options(options, scene, model):
+    """Recipe (--scene) first, then the flags given on the command line, then --model."""
+    import dataclasses
+
+    from click.core import ParameterSource
+
+    from .model_select import check_model
+
+    if scene is not None:
+        from .recipes import load_recipe
+
+        ctx = click.get_current_context()
+        explicit = {name for name in ("method", "velocity", "fit_gain", "noise_floor", "solver")
+                    if ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE}
+        recipe = load_recipe(scene).options
+        options = dataclasses.replace(recipe, **{name: getattr(options, name) for name in explicit})
+    if model is not None:
+        options = dataclasses.replace(options, model=check_model(model))
+    return options
 
 
 def _fit_file(path, options, record):
@@ -373,6 +403,81 @@ def _fit_figures(result, plot_dir, quiet):
     if not quiet:
         for p in paths:
             click.echo(f"figure: {p}", err=True)
+
+
+from .batch_cli import batch as _batch  # noqa: E402  (issue 7)
+main.add_command(_batch)
+
+
+@main.command("compare-r")
+@click.option("--out", "out_dir", default="compare_r", show_default=True, type=click.Path(file_okay=False),
+              help="Folder for the PNG figures and the bias table (CSV).")
+@click.option("--tol", type=float, default=0.05, show_default=True, help="Tolerance on |log R_rough - log R_exact|.")
+@click.option("--seeds", type=int, default=3, show_default=True, help="Seeds per cell of the fit-bias table.")
+@click.option("--simulate/--no-simulate", default=True, show_default=True,
+              help="Also fit simulated recordings (space-domain simulator) at a = 0.85, 2.2 mm, 4.7 cm/s.")
+@click.option("--hertz/--no-hertz", default=True, show_default=True,
+              help="Also compare the Gaussian window with the Hertz window (slower: the Hertz curve is a quadrature).")
+@_user_errors
+def compare_r(out_dir, tol, seeds, simulate, hertz):
+    """Rough (Eq. 26) vs exact (Eq. 23) R curve, and Gaussian vs Hertz window: maps, fit bias, time per fit."""
+    import csv
+    import time
+    from pathlib import Path
+
+    import numpy as np
+
+    from . import compare_r as cr
+
+    if not tol > 0 or seeds < 1:
+        raise TactileInputError("--tol must be positive and --seeds at least 1", code="bad_setting")
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    paths = cr.write_figures(out, tol=tol)
+    d1, d2 = cr._D1, cr._D2
+    click.echo(f"rough curve within {tol:g} of the exact one (paper sensor, d1 = {1e3 * d1:g} mm, d2 = {1e3 * d2:g} mm):")
+    click.echo(f"  {'a mm':>6}  {'alpha >= rad/m':>15}  {'f >= Hz at 2.3 cm/s':>20}  {'at 4.7 cm/s':>12}")
+    for a in (0.5e-3, 0.85e-3, 1.5e-3, 2.2e-3, 3e-3, 5e-3, 10e-3):
+        x = float(cr.rough_valid_alpha([d2 / a], tol)[0]) / a
+        click.echo(f"  {1e3 * a:>6.2f}  {x:>15.4g}  {x * 0.023 / (2 * np.pi):>20.1f}  {x * 0.047 / (2 * np.pi):>12.1f}")
+    s = tuple(range(seeds))
+    click.echo("")
+    click.echo("rough-valid: Eq. 26 fitted only where it is within 0.05 of Eq. 23 at the true a and speed "
+               "(an oracle band: its best case); a fit > 50 mm: the fitted offset wants no window")
+    click.echo("fit bias, synthetic exact-curve ratios (50 dB per bin, K = 28, 1 kHz, 512-sample segments), "
+               f"medians over {seeds} seeds:")
+    rows = cr.fit_bias([0.85e-3, 1.5e-3, 2.2e-3, 3e-3, 5e-3], [0.023, 0.047, 0.094], seeds=s,
+                       curves=("exact", "rough", "rough-valid"))
+    click.echo(cr.format_bias_table(rows))
+    all_rows = [("synthetic", r) for r in rows]
+    if simulate:
+        click.echo("")
+        click.echo(f"fit bias, simulated recordings (Gaussian window, slip along x, 8 s at 1 kHz, 50 dB), {seeds} seeds:")
+        rows = cr.fit_bias([0.85e-3, 2.2e-3], [0.047], seeds=s, source="simulator", truth="gaussian",
+                           curves=("exact", "rough", "rough-valid"))
+        click.echo(cr.format_bias_table(rows))
+        all_rows += [("simulator", r) for r in rows]
+    if hertz:
+        click.echo("")
+        click.echo("Gaussian vs Hertz window: synthetic Hertz-curve ratios (1-D texture) fitted with each curve:")
+        rows = cr.fit_bias([0.85e-3, 2.2e-3], [0.047], seeds=s, truth="hertz", curves=("exact", "hertz"))
+        click.echo(cr.format_bias_table(rows))
+        all_rows += [("synthetic", r) for r in rows]
+        if simulate:
+            click.echo("simulated recordings with the Hertz window (random 2-D texture):")
+            rows = cr.fit_bias([0.85e-3, 2.2e-3], [0.047], seeds=s, source="simulator", truth="hertz",
+                               curves=("exact", "hertz"))
+            click.echo(cr.format_bias_table(rows))
+            all_rows += [("simulator", r) for r in rows]
+    table = out / "fit_bias.csv"
+    with open(table, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(("source",) + cr.BiasRow._fields)
+        for src, r in all_rows:
+            w.writerow((src,) + tuple(r))
+    for p in paths + [table]:
+        click.echo(f"wrote {p}")
+    click.echo(f"time: {time.perf_counter() - t0:.1f} s")
 
 
 if __name__ == "__main__":  # pragma: no cover

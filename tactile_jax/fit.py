@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import joint_model as jm
+from . import model_select
 from .closed_form import dominant_wavenumber, slope_speed
 from .errors import TactileInputError
 from .lsq import LsqResult, least_squares
@@ -43,7 +44,7 @@ RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", 
 _log_g = jax.jit(log_g)
 _A_BOUNDS = (1e-5, 0.1)
 _POOR_FIT_REDCHI = 4.0          # above: status "poor_fit" (good fits of simulated scenes stay below 3)
-_GRID_MARGIN = 6.0               # bins of model grid beyond the fitted bins (>= any kernel's reach)          # m: contact radii the model is asked to consider
+_GRID_MARGIN = 6.0               # bins of model grid beyond the fitted bins (>= any kernel's reach)
 _V_BOUNDS = (1e-6, 10.0)         # m/s
 
 
@@ -63,6 +64,11 @@ class FitOptions:
         +/- 3 bins holds only spectral leakage (of a line texture) and is dropped.
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
+    model: the scene model (``model_select.MODELS``): None (default: slip and contact
+        window, plus gains / noise floor as ``fit_gain`` / ``noise_floor`` say), "slip"
+        (window negligible), "window", "window+gain", "window+noise", "window+gain+noise"
+        (these set the two flags), "hertz" (each pair with the Hertz curve) or "auto"
+        (chosen per recording by BIC; the choice and margin are in the result).
     """
 
     method: str = "welch"
@@ -81,6 +87,7 @@ class FitOptions:
     leakage_db: float = 20.0
     solver: str = "optimistix"
     window: str = "gaussian"
+    model: str | None = None
 
 
 class TextureSection(NamedTuple):
@@ -126,6 +133,7 @@ class FitResult:
     model: str = "joint-2d"
     window: str = "gaussian"
     converged: bool = False
+    model_margin: float | None = None
     status: str = "ok"
     message: str = ""
     file: str | None = None
@@ -155,7 +163,7 @@ class FitResult:
         """One flat row of the data contract (JSON/CSV ready: floats, bools, str, None)."""
         row = {name: _plain(getattr(self, name)) for name in RESULT_FIELDS}
         for extra in ("a_lower", "vx_upper", "vy_upper", "gain_ratio_y", "gain_ratio_y_err", "redchi", "n_bins",
-                      "cond", "aic", "bic", "solver", "precision"):
+                      "cond", "aic", "bic", "solver", "precision", "model_margin"):
             row[extra] = _plain(getattr(self, extra))
         if self.posterior is not None:
             row.update(self.posterior_record())
@@ -282,8 +290,13 @@ def fit_spectra(data, options: FitOptions = FitOptions()) -> FitResult:
             options_msg = "n_segments not given: errors assume 1 segment (very conservative)"
         else:
             options_msg = ""
+        estimator = {"kernel": _file_kernel(data)}
+        if data.bin_factor is not None:
+            estimator["bin_factor"] = float(data.bin_factor)
+        if data.whitening is not None:
+            estimator.update(whitening=jnp.asarray(data.whitening), fs=jnp.asarray(float(data.fs)))
         spec = CrossSpectra(jnp.asarray(omega / (2 * np.pi)), jnp.asarray(omega), jnp.asarray(data.psd, float),
-                            jnp.asarray(data.csd, complex), int(round(k)), k, "given")
+                            jnp.asarray(data.csd, complex), int(round(k)), k, "given", **estimator)
         res = fit_cross_spectra(spec, data.depths, options, curvature_radius=data.curvature_radius)
         if options_msg:
             res.warnings.append(options_msg)
@@ -310,6 +323,7 @@ def _fit_ratio_only(data, options: FitOptions) -> FitResult:
             fits.append(None)
             continue
         fits.append(fit_pair(omega, log_ratio[p], err[p], mask, d1, d2, gain_ratio=gains[p], fit_gain=options.fit_gain,
+                             bin_factor=data.bin_factor or 1.0, kernel=_file_kernel(data),
                              solver=options.solver, speed0=None if options.velocity is None else max(options.velocity[p], 1e-4)))
     if all(f is None for f in fits):
         res.status, res.message = "no_band", "fewer than 4 finite ratio bins in either pair"
@@ -337,6 +351,13 @@ def _fit_ratio_only(data, options: FitOptions) -> FitResult:
     return res
 
 
+def _file_kernel(data):
+    """A spectra file's spectral window as ``(offsets, weights)``, or a single bin."""
+    if getattr(data, "kernel", None) is None:
+        return ((0.0,), (1.0,))
+    return tuple(tuple(float(x) for x in row) for row in np.asarray(data.kernel))
+
+
 def _gains(options: FitOptions) -> tuple[float, float]:
     g = options.gain_ratio
     if g is None:
@@ -349,6 +370,9 @@ def fit_cross_spectra(spec: CrossSpectra, depths, options: FitOptions = FitOptio
                       curvature_radius=None) -> FitResult:
     """Fit the joint model to estimated spectra. Never raises for a fit that fails: see ``status``."""
     try:
+        options = model_select.options_for(options)
+        if options.model == "hertz":            # the joint model is Gaussian only: each pair alone
+            return model_select.fit_hertz(spec, depths, options, curvature_radius)
         return _fit_cross_spectra(spec, depths, options, curvature_radius)
     except TactileInputError:
         raise
@@ -379,13 +403,14 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
                        "too few to fit; check the gains, the SNR or the band limits")
         return res
     used = np.flatnonzero(band.any(axis=0))
-    i0 = max(int(used[0]), 1)
+    i0 = int(used[0])                                       # never DC: usable_band needs omega > 0
     length = _bucket(int(used[-1]) - i0 + 1)
     idx = np.arange(i0, i0 + length)
     valid = idx < omega.size
     idx = np.where(valid, idx, omega.size - 1)
     d_omega = float(omega[1] - omega[0])
-    om = i0 * d_omega + d_omega * np.arange(length)        # bins (extrapolated past the end if needed)
+    # bins (extrapolated past the end if needed); spectra files may start above DC
+    om = float(omega[i0]) + d_omega * np.arange(length)
     offsets, weights = (np.asarray(v, float) for v in spec.kernel)
     # a fixed grid margin (bins) so every kernel gives the same shapes: one compilation
     half = max(float(np.max(np.abs(offsets))), _GRID_MARGIN)
@@ -450,7 +475,9 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
         free[6] = False
     if not band[1].any():
         free[5] = False                                     # nothing measures the y pair's level
-    s11_weight = np.sqrt(spec.dof / max(spec.bin_factor, 1.0))
+    # every residual is weighted as if bins were independent; their correlation (bin_factor) scales
+    # the covariance in ``_fill``, so that the reduced chi-square of a good fit stays near 1
+    s11_weight = np.sqrt(spec.dof)
     # weak priors: a factor e^3 on speeds and radius around the single-pair starts, e^2 on fitted gains
     prior_inv_sd = np.zeros(theta0.size)
     prior_inv_sd[[0, 1, 2]] = 1.0 / 3.0
@@ -494,18 +521,38 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
                               max_steps=256, n_prior=n_prior)
         if fit is None or (np.isfinite(float(trial.chi2)) and float(trial.chi2) < float(fit.chi2)):
             fit = trial
+    fit, free = _select_model(res, fit, free, data, options, n_prior, spec.bin_factor, noise0)
     res.n_bins = int(mask_h.sum())
     res.spectrum = {"omega": om, "log_ratio": np.where(valid, ratio_np[0][:, idx], np.nan),
                     "log_ratio_err": np.where(valid, ratio_np[1][:, idx], np.nan), "mask": mask_h}
     if n_leak:
         res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")
-    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius)
+    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, bin_factor=float(spec.bin_factor))
+    _model_note(res)
     res.data = data
     # dominant wavenumbers (Eq. 4 / 17) where a pair's shallow spectrum has a single dominant line
     for p, attr in ((0, "k0x"), (1, "k0y")):
         k0 = _dominant(shallow[p], ratio_np[0][p], band[p], d1, d2, gains[p])
         setattr(res, attr, k0)
     return res
+
+
+def _select_model(res, fit, free, data, options, n_prior, bin_factor, noise0):
+    """Apply ``options.model`` (forced or "auto", ``model_select``): the chosen fit and free mask."""
+    sel = model_select.select(fit, free, data, options, n_prior=n_prior, bin_factor=bin_factor, noise0=noise0)
+    res.model, res.model_margin = sel.name, sel.margin
+    if sel.note:
+        res.warnings.append(sel.note)
+    return sel.fit, sel.free
+
+
+def _model_note(res):
+    """Put the model choice first in the message; flag error bars larger than their values."""
+    choice = [w for w in res.warnings if w.startswith("model ") and "chosen by" in w]
+    if choice:
+        res.warnings.remove(choice[0])
+        res.message = "; ".join(m for m in (choice[0], res.message) if m)
+    model_select.annotate(res)
 
 
 def _dominant(psd, log_ratio, band, d1, d2, gain):
@@ -533,13 +580,16 @@ def _contact_depth(res: FitResult, curvature_radius):
         res.warnings.append(f"curvature_radius not given: contact depth assumes R = {1e3 * r:g} mm")
 
 
-def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius):
+def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius, *, bin_factor=1.0):
     theta = np.asarray(fit.theta)
     # lsq scales the covariance by redchi; we only let it inflate: a redchi below 1 here comes from
     # per-bin errors that overestimate the noise (coherence lost to resolution, not to noise), and
-    # shrinking every error bar by it under-covers (benchmarks/coverage.py)
+    # shrinking every error bar by it under-covers (benchmarks/coverage.py). Adjacent bins of the
+    # spectra are correlated: the residuals count each bin as independent, so the information is
+    # bin_factor times too high (Hann Welch: 1.94) and the covariance is multiplied by it.
     redchi = float(fit.redchi)
-    cov = np.asarray(fit.cov) * (max(redchi, 1.0) / redchi if redchi > 0 else 1.0)
+    scale = max(redchi, 1.0) * max(bin_factor, 1.0)
+    cov = np.asarray(fit.cov) * (scale / redchi if redchi > 0 else 1.0)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     res.converged = bool(fit.converged)
     res.redchi, res.chi2 = float(fit.redchi), float(fit.chi2)
@@ -574,7 +624,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
         setattr(res, name, float(v))
         setattr(res, name + "_err", err)
         if err > v or v < 1e-3 * max(vx, vy):
-            upper = _profile_bound(fit, data, free, options, i, theta[i], direction=+1, scale=max(res.redchi, 1.0))
+            upper = _profile_bound(fit, data, free, options, i, theta[i], direction=+1, scale=scale)
             if upper is not None and upper > _V_BOUNDS[1]:
                 upper = None
             setattr(res, name + "_upper", upper)
@@ -583,7 +633,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
     # contact radius
     a_err = float(a * sd[2])
     if a_err > 0.5 * a or a > 0.5 * _A_BOUNDS[1]:
-        lower = _profile_bound(fit, data, free, options, 2, theta[2], direction=-1, scale=max(res.redchi, 1.0))
+        lower = _profile_bound(fit, data, free, options, 2, theta[2], direction=-1, scale=scale)
         res.a, res.a_err, res.a_lower = None, None, lower
         notes.append("the contact window is too weak to measure a: "
                      f"a > {1e3 * lower:.3g} mm (95 % lower bound)" if lower else
@@ -611,7 +661,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
         res.warnings.append(f"texture cross-sections not computed: {err}")
     res.problem = FitProblem(
         residuals=jm.residuals, args=data, theta=theta, free=tuple(bool(f) for f in free), names=tuple(names),
-        lower=_lower(len(theta)), upper=_upper(len(theta)), cov=cov, scale=max(res.redchi, 1.0),
+        lower=_lower(len(theta)), upper=_upper(len(theta)), cov=cov, scale=scale,
         to_physical=_to_physical(curvature_radius))
 
 

@@ -69,6 +69,12 @@ class SpectraData(NamedTuple):
     velocity: (vx, vy) in m/s when known, or None.
     gain_ratio: calibrated deep/shallow gain ratio g (float or per-pair (gx, gy)), or None.
     source: where the spectra came from (a path), for messages.
+    The estimator that made ``psd``/``csd`` (optional; written by ``tactile-jax spectra``, so
+    that a fit of the file models the spectra exactly as a fit of the recording does):
+    kernel: (2, J) offsets (bins) and weights of one bin's spectral window, or None.
+    bin_factor: variance inflation of a sum over adjacent bins (correlated bins), or None.
+    whitening: (2, p + 1) AR prewhitening error filters of the x and y pairs, or None.
+    fs: the recording's sample rate, Hz (needed with ``whitening``), or None.
 
     Either ``psd`` or ``ratio`` is required; both may be given.
     """
@@ -84,6 +90,10 @@ class SpectraData(NamedTuple):
     velocity: tuple[float, float] | None = None
     gain_ratio: Any = None
     source: str | None = None
+    kernel: np.ndarray | None = None
+    bin_factor: float | None = None
+    whitening: np.ndarray | None = None
+    fs: float | None = None
 
 
 # --------------------------------------------------------------------------- public API
@@ -132,7 +142,8 @@ def read_spectra(path) -> SpectraData:
     Keys: ``omega`` (M,) rad/s; ``psd`` (4, M) with optional complex ``csd`` (2, M) and
     ``n_segments``, and/or ``ratio`` (2, M) amplitude ratios with optional ``ratio_err``
     (2, M, standard error of log ratio); ``depths`` [d1, d2] (m); optional
-    ``curvature_radius`` (m), ``velocity`` (m/s), ``gain_ratio``.
+    ``curvature_radius`` (m), ``velocity`` (m/s), ``gain_ratio``; optional estimator
+    description ``kernel`` (2, J), ``bin_factor``, ``whitening`` (2, p + 1), ``fs`` (Hz).
     Raises ``TactileInputError`` (source = ``str(path)``) on any failure.
     """
     path, src = _as_path(path)
@@ -149,11 +160,12 @@ def write_spectra(path, data: SpectraData) -> Path:
     kind = _kind(path, src)
     vsrc = getattr(data, "source", None) or src
     checked = _spectra_checked(lambda k: getattr(data, k, None), vsrc)
-    arrays = {k: getattr(checked, k) for k in ("omega", "psd", "csd", "ratio", "ratio_err")}
+    arrays = {k: getattr(checked, k) for k in ("omega", "psd", "csd", "ratio", "ratio_err", "kernel", "whitening")}
     arrays = {k: v for k, v in arrays.items() if v is not None}
     attrs: dict[str, Any] = {"depths": np.asarray(checked.depths, dtype=np.float64)}
-    if checked.n_segments is not None:
-        attrs["n_segments"] = np.float64(checked.n_segments)
+    for key in ("n_segments", "bin_factor", "fs"):
+        if getattr(checked, key) is not None:
+            attrs[key] = np.float64(getattr(checked, key))
     attrs.update(_optional_attrs(lambda k: getattr(checked, k), vsrc))
     return _atomic_write(path, kind, arrays, attrs)
 
@@ -348,7 +360,41 @@ def _spectra_checked(get: Callable[[str], Any], src: str) -> SpectraData:
         raise TactileInputError(f"'depths' must be [d1, d2] in metres with 0 < d1 < d2, got {list(depths)}",
                                 source=src, code="bad_depths")
     return SpectraData(omega=omega, psd=psd, csd=csd, n_segments=n_segments, ratio=ratio, ratio_err=ratio_err,
-                       depths=depths, source=src, **_optional_values(get, src))
+                       depths=depths, source=src, **_optional_values(get, src), **_estimator_values(get, src))
+
+
+def _estimator_values(get: Callable[[str], Any], src: str) -> dict[str, Any]:
+    """The optional description of the spectral estimator: kernel, bin_factor, whitening, fs."""
+    out: dict[str, Any] = {"kernel": None, "bin_factor": None, "whitening": None, "fs": None}
+    for key in ("bin_factor", "fs"):
+        value = get(key)
+        if value is not None:
+            value = _real_scalar(value, key, src, "bad_setting")
+            if not (np.isfinite(value) and value > 0):
+                raise TactileInputError(f"'{key}' must be positive and finite, got {value}", source=src,
+                                        code="bad_setting")
+            out[key] = value
+    kernel = get("kernel")
+    if kernel is not None:
+        k = np.asarray(kernel)
+        if k.dtype.kind not in "fiu" or k.ndim != 2 or k.shape[0] != 2 or k.shape[1] < 1:
+            raise TactileInputError(f"'kernel' must be a (2, J) array of bin offsets and weights, got {_describe(k)}",
+                                    source=src, code="bad_shape")
+        k = _finite(k.astype(np.float64), "kernel", src)
+        if np.any(k[1] < 0) or not np.isclose(k[1].sum(), 1.0, rtol=1e-6):
+            raise TactileInputError("'kernel' weights (second row) must be >= 0 and sum to 1", source=src,
+                                    code="bad_shape")
+        out["kernel"] = k
+    whitening = get("whitening")
+    if whitening is not None:
+        w = np.asarray(whitening)
+        if w.dtype.kind not in "fiu" or w.ndim != 2 or w.shape[0] != 2 or w.shape[1] < 1:
+            raise TactileInputError(f"'whitening' must be a (2, p + 1) array of AR error filters, got {_describe(w)}",
+                                    source=src, code="bad_shape")
+        out["whitening"] = _finite(w.astype(np.float64), "whitening", src)
+        if out["fs"] is None:
+            raise TactileInputError("'whitening' given without 'fs' (Hz)", source=src, code="missing_key")
+    return out
 
 
 def _matrix(value, key: str, rows: int, m: int, src: str, *, complex_ok: bool = False) -> np.ndarray:

@@ -15,10 +15,13 @@ import numpy as np
 
 from .closed_form import radius_from_offset, slope_speed
 from .lsq import least_squares
-from .r_curve import log_r_exact
+from .r_curve import log_r_exact, log_r_hertz, log_r_rough
 from jax.scipy.special import logsumexp
 
-__all__ = ["PairFit", "fit_pair"]
+__all__ = ["PairFit", "fit_pair", "CURVES"]
+
+#: R curves a pair can be fitted with: Gaussian exact (Eq. 23), the rough Eq. 26, Hertz (Eq. 12, 1-D texture)
+CURVES = ("exact", "rough", "hertz")
 
 
 class PairFit(NamedTuple):
@@ -36,21 +39,45 @@ class PairFit(NamedTuple):
     cond: float
 
 
-def _residuals(theta, args):
+def _pair_residuals(log_r_fn, theta, args):
     omega, y, err, mask, d1, d2, offsets, log_w = args
     log_v, log_a, log_g = theta[0], theta[1], theta[2]
     # the expected estimate at a bin is the spectral-window average of R around it
     # (the prewhitened shallow spectrum is flat, so R is averaged with the window's weights)
     d_omega = omega[1] - omega[0]
     om = jnp.abs(omega[:, None] + offsets[None, :] * d_omega)
-    log_r = log_r_exact(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
+    log_r = log_r_fn(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
     model = logsumexp(log_r + log_w[None, :], axis=-1) + log_g
     safe_err = jnp.where(mask, err, 1.0)
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
 
+def _residuals(theta, args):
+    """Residuals of the exact (Gaussian window, Eq. 23) R curve."""
+    return _pair_residuals(log_r_exact, theta, args)
+
+
+def _residuals_rough(theta, args):
+    """Residuals of the rough R curve (Eq. 26): a straight line whose offset gives a."""
+    return _pair_residuals(log_r_rough, theta, args)
+
+
+def _log_r_hertz_1d(alpha, d1, d2, a):
+    # ky = 0: the Hertz projection is exact with one Chebyshev node; 4 panels: 4e-5 in log R for alpha a < 30
+    return log_r_hertz(alpha, d1, d2, a, n_y=1, panels=4)
+
+
+def _residuals_hertz(theta, args):
+    """Residuals of the Hertz-window R curve (Eq. 12) for a texture varying along the slip."""
+    return _pair_residuals(_log_r_hertz_1d, theta, args)
+
+
+_RESIDUALS = {"exact": _residuals, "rough": _residuals_rough, "hertz": _residuals_hertz}
+
+
 def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, fit_gain=False,
-             speed0=None, a0=None, bin_factor=1.0, kernel=((0.0,), (1.0,)), solver="optimistix") -> PairFit:
+             speed0=None, a0=None, bin_factor=1.0, kernel=((0.0,), (1.0,)), solver="optimistix",
+             curve: str = "exact") -> PairFit:
     """Fit log R_exact(omega / v; a) + log g to one pair's log AMPLITUDE ratio.
 
     omega: (M,) rad/s. log_ratio, log_ratio_err: (M,) log|P2/P1| and its
@@ -60,7 +87,10 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     bin_factor: the spectra's correlation between bins (inflates the covariance).
     kernel: the spectra's spectral window ``(offsets in bins, weights)``;
         the model averages R over it (resolution bias). Default: none.
+    curve: "exact" (Gaussian window, Eq. 23), "rough" (Eq. 26) or "hertz" (Eq. 12).
     """
+    if curve not in _RESIDUALS:
+        raise ValueError(f"unknown R curve {curve!r}; expected one of {CURVES}")
     mask = np.asarray(mask, bool) & np.isfinite(log_ratio) & np.isfinite(log_ratio_err)
     if speed0 is None or a0 is None:
         line = slope_speed(omega, log_ratio, log_ratio_err, mask, d1, d2)
@@ -74,7 +104,7 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     keep = weights > 0
     args = (jnp.asarray(omega), jnp.asarray(log_ratio), jnp.asarray(log_ratio_err), jnp.asarray(mask),
             float(d1), float(d2), jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
-    res = least_squares(_residuals, theta0, args, jnp.array([True, True, bool(fit_gain)]), solver=solver,
+    res = least_squares(_RESIDUALS[curve], theta0, args, jnp.array([True, True, bool(fit_gain)]), solver=solver,
                         bin_factor=float(bin_factor))
     th = np.asarray(res.theta)
     redchi = float(res.redchi)

@@ -5,7 +5,6 @@ test, so the compiled joint-model functions are built once per process.
 """
 
 import json
-import math
 
 import numpy as np
 import pytest
@@ -118,20 +117,24 @@ def test_good_and_garbage_files_go_on(scene_file, tmp_path):
     assert all(set(RESULT_FIELDS) <= set(r) for r in rows)
 
 
-def test_spectra_file_fits_through_the_same_command(scene_file, tmp_path):
+def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
+    """The spectra file carries the estimator (kernel, bin factor, prewhitening filter): same fit."""
     spec = tmp_path / "spec.npz"
     runner = CliRunner()
-    res = runner.invoke(main, ["spectra", str(scene_file), "--out", str(spec)])
+    res = runner.invoke(main, ["spectra", str(scene_file), "--out", str(spec), "--nperseg", "1024"])
     assert res.exit_code == 0, res.output
     out = tmp_path / "r.json"
     res = runner.invoke(main, ["fit", str(spec), "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert "[[Variables]]" in res.stdout
     (row,) = read_results(out)
-    # spectra files do not carry the estimator's kernel and prewhitening filter, so the joint model
-    # misses the resolution bias and says so ("poor_fit"); see the issue #3 note
-    assert row["file"] == str(spec) and row["index"] == 0 and row["status"] in ("ok", "poor_fit")
-    assert math.isfinite(row["vx"]) and row["vx"] == pytest.approx(VX, rel=0.25)
+    assert row["file"] == str(spec) and row["index"] == 0 and row["status"] == "ok"
+    from tactile_jax.fit import FitOptions, fit_recording
+    from tactile_jax.io import read_recording
+
+    direct = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024))
+    for name in ("vx", "vx_err", "a", "a_err"):
+        assert row[name] == pytest.approx(getattr(direct, name), rel=1e-6), name
 
 
 def test_report_says_fixed_and_undetermined():

@@ -321,7 +321,9 @@ def _spectra_psd(m=16) -> SpectraData:
     psd = rng.uniform(0.1, 2.0, (4, m))
     csd = rng.standard_normal((2, m)) + 1j * rng.standard_normal((2, m))
     return SpectraData(omega=omega, psd=psd, csd=csd, n_segments=12.0, depths=DEPTHS,
-                       curvature_radius=0.03, velocity=(0.02, 0.0), gain_ratio=1.1)
+                       curvature_radius=0.03, velocity=(0.02, 0.0), gain_ratio=1.1,
+                       kernel=np.array([[-1.0, 0.0, 1.0], [0.25, 0.5, 0.25]]), bin_factor=1.94,
+                       whitening=np.array([[1.0, -0.9, 0.1], [1.0, -0.8, 0.05]]), fs=1000.0)
 
 
 def _spectra_ratio(m=16) -> SpectraData:
@@ -338,14 +340,14 @@ def test_spectra_round_trip(tmp_path, suffix, make):
     assert write_spectra(path, data) == path
     got = read_spectra(path)
     assert got.source == str(path)
-    for field in ("omega", "psd", "csd", "ratio", "ratio_err"):
+    for field in ("omega", "psd", "csd", "ratio", "ratio_err", "kernel", "whitening"):
         want, have = getattr(data, field), getattr(got, field)
         if want is None:
             assert have is None, field
         else:
             assert have.dtype == want.dtype, field
             np.testing.assert_array_equal(have, want)
-    for field in ("n_segments", "depths", "curvature_radius", "velocity", "gain_ratio"):
+    for field in ("n_segments", "depths", "curvature_radius", "velocity", "gain_ratio", "bin_factor", "fs"):
         assert getattr(got, field) == getattr(data, field), field
     assert not is_recording_file(path)
     assert _leftovers(tmp_path) == []
@@ -378,6 +380,11 @@ def _spectra_items(**over):
         ({"psd": None, "ratio": np.zeros((2, 8))}, "bad_shape"),
         ({"psd": None, "ratio": np.ones((2, 8)), "ratio_err": np.zeros((2, 8))}, "bad_shape"),
         ({"n_segments": np.float64(0.0)}, "bad_setting"),
+        ({"bin_factor": np.float64(-1.0)}, "bad_setting"),
+        ({"kernel": np.ones(3)}, "bad_shape"),
+        ({"kernel": np.array([[0.0, 1.0], [0.7, 0.7]])}, "bad_shape"),
+        ({"whitening": np.ones((2, 3))}, "missing_key"),
+        ({"whitening": np.ones((3, 3)), "fs": np.float64(1e3)}, "bad_shape"),
         ({"depths": np.array([1e-3, 0.5e-3])}, "bad_depths"),
         ({"depths": np.array([-1e-3, 0.5e-3])}, "bad_depths"),
     ],

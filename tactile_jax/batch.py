@@ -1,0 +1,552 @@
+"""Batch reprocessing of datasets: walk, chunk, fit, resume, write atomically, optionally on Dask.
+
+``run_batch(inputs, out)`` fits every record of every recording under
+``inputs`` (files, folders searched recursively, multi-record files with
+``signals`` of shape (n, 4, N)) and writes one data-contract row per record
+to ``out`` (.json, .csv or .parquet). Records of the same length N are
+fitted in chunks of ``chunk_size`` by the compiled program of ``batch_fit``
+(the last chunk is padded with copies that are dropped), so a batch compiles
+once per (N, chunk size), not once per record.
+
+Nothing is lost: a bad record (NaN samples, wrong shape, missing fs/depths,
+an unreadable file) becomes a row with its ``status`` (the
+``TactileInputError`` code) and ``message``; the others go on. The results
+file is rewritten atomically (``results.write_results``: temporary file then
+``os.replace``) after every chunk, so an interruption loses at most the
+chunks in flight, and a rerun with the same ``out`` skips the rows already
+there (``resume``). Rows whose status is transient (``worker_error``) are redone.
+
+With ``workers=N`` (a ``dask.distributed.LocalCluster`` of N spawned
+processes; JAX does not survive ``fork``) or ``scheduler=ADDRESS`` the chunks
+run as Dask tasks, partitioned by file and chunk exactly as locally, so the
+rows are the same.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .errors import TactileInputError
+from .fit import FitOptions, RESULT_FIELDS
+
+__all__ = ["BatchSummary", "run_batch", "scan_inputs", "TRANSIENT_STATUSES", "DEFAULT_MODEL"]
+
+#: statuses of rows that a resumed batch computes again (failures of the machinery, not of the data)
+TRANSIENT_STATUSES = ("worker_error",)
+#: statuses of a fit that ran and produced values (the others count as failed)
+FIT_RAN = ("ok", "not_converged", "poor_fit")
+#: the model a batch fits unless told otherwise (see benchmarks/README.md, "Throughput")
+DEFAULT_MODEL = "pair"
+
+
+@dataclasses.dataclass
+class BatchSummary:
+    """What a batch did. ``timings`` in seconds: scan, read, spectra, fit, write, total."""
+
+    n_rows: int
+    n_failed: int
+    n_skipped: int
+    out: Path
+    timings: dict
+    n_fitted: int = 0
+    notes: list = dataclasses.field(default_factory=list)
+    model: str = DEFAULT_MODEL
+
+
+@dataclasses.dataclass
+class _FileInfo:
+    """A recording file's metadata (signals not read) or the error that makes it unusable."""
+
+    path: str
+    kind: str = ""
+    n_records: int = 0
+    n_samples: int = 0
+    multi: bool = False
+    fs: float = float("nan")
+    depths: tuple = (float("nan"), float("nan"))
+    curvature_radius: float | None = None
+    velocity: tuple | None = None
+    gain_ratio: object = None
+    error: TactileInputError | None = None
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def _walk(inputs) -> tuple[list[str], list[str]]:
+    """Files to process (explicit files always; folder entries only when they hold recordings) and notes."""
+    from .io import RECORDING_SUFFIXES, is_recording_file
+
+    files, notes = [], []
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    for item in inputs:
+        p = Path(os.fspath(item))
+        if p.is_dir():
+            for root, dirs, names in os.walk(p):
+                dirs.sort()
+                for name in sorted(names):
+                    q = os.path.join(root, name)
+                    if name.startswith("."):
+                        continue
+                    if is_recording_file(q):
+                        files.append(q)
+                    else:
+                        why = ("not a recording (no 'signals' or unreadable)" if Path(name).suffix.lower()
+                               in RECORDING_SUFFIXES else "not a recording file type")
+                        notes.append(f"skipped {q}: {why}")
+        else:
+            files.append(os.fspath(item))
+    seen, unique = set(), []
+    for f in files:
+        if f not in seen:
+            seen.add(f)
+            unique.append(f)
+    return unique, notes
+
+
+def _npz_header(path: str):
+    with zipfile.ZipFile(path) as zf:
+        name = "signals.npy"
+        if name not in zf.namelist():
+            return None
+        with zf.open(name) as fh:
+            version = np.lib.format.read_magic(fh)
+            reader = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = reader(fh)
+    return shape, dtype
+
+
+def _scan(path: str) -> _FileInfo:
+    """Read a recording file's metadata and the shape of ``signals`` without reading the samples."""
+    from . import io as tio
+    from .recording import Recording, validate_recording
+
+    info = _FileInfo(path)
+    try:
+        p = Path(path)
+        kind = tio._kind(p, path)
+        if not p.is_file():
+            raise TactileInputError("file not found" if not p.exists() else "not a regular file", source=path,
+                                    code="unreadable")
+        if kind == "hdf5":
+            import h5py
+
+            try:
+                f = h5py.File(p, "r")
+            except Exception as exc:
+                raise TactileInputError(f"not a readable HDF5 file ({tio._brief(exc)})", source=path,
+                                        code="unreadable") from None
+            with f:
+                store = tio._H5Store(f, path)
+                shape, dtype = _require(store, path, lambda: (f["signals"].shape, f["signals"].dtype)
+                                        if isinstance(f.get("signals"), h5py.Dataset) else None)
+                meta = _meta(store, path)
+        else:
+            with p.open("rb") as fh:
+                if fh.read(2) != b"PK":
+                    raise TactileInputError("not a valid NPZ archive (no zip signature)", source=path, code="unreadable")
+            with np.load(p, allow_pickle=False) as z:
+                store = tio._NpzStore(z, path)
+                shape, dtype = _require(store, path, lambda: _npz_header(path))
+                meta = _meta(store, path)
+        info.kind = kind
+        if np.dtype(dtype).kind not in "fiu":
+            raise TactileInputError("signals must be a real numeric array", source=path, code="bad_shape")
+        if len(shape) not in (2, 3) or shape[-2] != 4:
+            raise TactileInputError(
+                f"signals must have shape (4, N) or (n, 4, N) with channels x1, x2, y1, y2; got {tuple(shape)}",
+                source=path, code="bad_shape")
+        if shape[-1] < 2 or (len(shape) == 3 and shape[0] == 0):
+            raise TactileInputError(f"signals hold no samples (shape {tuple(shape)})", source=path, code="too_short")
+        # fs and depths by the contract's own checks, on a placeholder signal
+        validate_recording(Recording(np.zeros((4, 2)), meta["fs"], meta["depths"], source=path))
+        info.multi = len(shape) == 3
+        info.n_records = shape[0] if info.multi else 1
+        info.n_samples = int(shape[-1])
+        info.fs, info.depths = float(meta["fs"]), tuple(float(d) for d in meta["depths"])
+        info.curvature_radius, info.velocity, info.gain_ratio = (meta["curvature_radius"], meta["velocity"],
+                                                                 meta["gain_ratio"])
+    except TactileInputError as err:
+        info.error = err.with_source(path)
+    except Exception as exc:  # noqa: BLE001 - a file the readers did not foresee
+        info.error = TactileInputError(f"cannot read file: {type(exc).__name__}: {exc}", source=path, code="unreadable")
+    return info
+
+
+def _require(store, path, shape_of):
+    from .io import _RECORDING_KEYS
+
+    keys = store.keys()
+    for key in _RECORDING_KEYS:
+        if key not in keys:
+            hint = " (this looks like a spectra file: fit it with 'tactile-jax fit')" if "omega" in keys else ""
+            raise TactileInputError(f"missing key '{key}'; a recording needs 'signals', 'fs' and 'depths'{hint}",
+                                    source=path, code="missing_key")
+    got = shape_of()
+    if got is None:                                   # signals stored as an attribute: read it (small)
+        sig = np.asarray(store.get("signals"))
+        return sig.shape, sig.dtype
+    return got
+
+
+def _meta(store, path) -> dict:
+    from . import io as tio
+
+    meta = {"fs": tio._real_scalar(store.get("fs"), "fs", path, "bad_fs"),
+            "depths": tio._depth_pair(store.get("depths"), path)}
+    meta.update(tio._optional_values(store.get, path))
+    return meta
+
+
+def scan_inputs(inputs) -> tuple[list[_FileInfo], list[str]]:
+    """Walk ``inputs`` and scan every recording file: (file infos, notes about skipped files)."""
+    files, notes = _walk(inputs)
+    return [_scan(f) for f in files], notes
+
+
+# --------------------------------------------------------------------------- reading records
+
+
+_NPZ_CACHE: dict = {}
+
+
+def _read_records(info: _FileInfo, start: int, stop: int) -> np.ndarray:
+    """Records ``start:stop`` of a file as (n, 4, N); HDF5 is sliced lazily, NPZ loaded once per process."""
+    if info.kind == "hdf5":
+        import h5py
+
+        with h5py.File(info.path, "r") as f:
+            ds = f["signals"] if "signals" in f else None
+            if ds is None:
+                sig = np.asarray(f.attrs["signals"])
+                return sig[None] if sig.ndim == 2 else sig[start:stop]
+            return ds[start:stop] if info.multi else ds[()][None]
+    key = (info.path, os.path.getmtime(info.path))
+    if key not in _NPZ_CACHE:
+        _NPZ_CACHE.clear()                              # one file at a time: memory stays bounded
+        with np.load(info.path, allow_pickle=False) as z:
+            _NPZ_CACHE[key] = z["signals"]
+    sig = _NPZ_CACHE[key]
+    return sig[None] if not info.multi else sig[start:stop]
+
+
+def _gains(info: _FileInfo, options: FitOptions) -> tuple[float, float]:
+    g = options.gain_ratio if options.gain_ratio is not None else info.gain_ratio
+    if g is None:
+        return 1.0, 1.0
+    g = np.atleast_1d(np.asarray(g, float))
+    return float(g[0]), float(g[-1])
+
+
+def _error_row(src: str, index: int, code: str, message: str, model: str) -> dict:
+    row = dict.fromkeys(RESULT_FIELDS)
+    row.update(file=src, index=int(index), converged=False, status=code, message=message, model=model)
+    return row
+
+
+# --------------------------------------------------------------------------- chunks
+
+
+def _plan(infos: list[_FileInfo], done: set, chunk_size: int):
+    """Chunks of (file index, start, stop) segments, grouped by record length; the records to do."""
+    groups: dict[int, list[tuple[int, int]]] = {}
+    sizes: dict[int, int] = {}
+    for fi, info in enumerate(infos):
+        if info.error is not None:
+            continue
+        sizes[info.n_samples] = sizes.get(info.n_samples, 0) + info.n_records
+        todo = [i for i in range(info.n_records) if (info.path, i) not in done]
+        groups.setdefault(info.n_samples, []).extend((fi, i) for i in todo)
+    chunks = []
+    for n_samples in sorted(groups):
+        items = groups[n_samples]
+        # a tiny dataset gets a small program; the size depends on the dataset, not on what is left to do
+        size = min(chunk_size, 1 << max(sizes[n_samples] - 1, 0).bit_length())
+        for c in range(0, len(items), size):
+            part = items[c:c + size]
+            segments = []
+            for fi, i in part:
+                if segments and segments[-1][0] == fi and segments[-1][2] == i:
+                    segments[-1][2] = i + 1
+                else:
+                    segments.append([fi, i, i + 1])
+            chunks.append((size, [tuple(s) for s in segments]))
+    return chunks
+
+
+_PROGRAMS: dict = {}
+
+
+def _program(options: FitOptions, model: str):
+    from .batch_fit import FitProgram
+
+    key = (options, model)
+    if key not in _PROGRAMS:
+        _PROGRAMS[key] = FitProgram(options=options, model=model)
+    return _PROGRAMS[key]
+
+
+def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOptions, model: str,
+               x64: bool = True, cache_dir: str | None = None) -> tuple[list[dict], dict]:
+    """Read, check and fit one chunk; return its rows (in segment order) and stage timings. Never raises."""
+    import jax
+
+    if x64 and not jax.config.jax_enable_x64:
+        jax.config.update("jax_enable_x64", True)
+    if cache_dir and not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", cache_dir)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    from .batch_fit import ChunkMeta, chunk_rows
+    from .recording import Recording, validate_recording
+    from .sensor import PAPER_SENSOR
+
+    t0 = time.perf_counter()
+    rows: dict[int, dict] = {}
+    good, sigs, metas = [], [], []
+    pos = 0
+    for info, (_, start, stop) in zip(infos_part, segments):
+        try:
+            block = _read_records(info, start, stop)
+        except Exception as exc:  # noqa: BLE001 - a file that changed or broke since the scan
+            for k, i in enumerate(range(start, stop)):
+                rows[pos + k] = _error_row(info.path, i, "unreadable",
+                                           f"{info.path}: cannot read record {i}: {type(exc).__name__}: {exc}", model)
+            pos += stop - start
+            continue
+        finite = np.isfinite(block).all(axis=(1, 2)) if block.dtype.kind == "f" else np.ones(len(block), bool)
+        for k, i in enumerate(range(start, stop)):
+            if not finite[k]:
+                src = f"{info.path} [record {i}]" if info.multi else info.path
+                try:
+                    validate_recording(Recording(block[k], info.fs, info.depths, source=src))
+                    msg, code = f"{src}: non-finite samples", "nonfinite"
+                except TactileInputError as err:
+                    msg, code = str(err), err.code
+                rows[pos + k] = _error_row(info.path, i, code, msg, model)
+                continue
+            good.append((pos + k, info.path, i))
+            sigs.append(block[k])
+            gx, gy = _gains(info, options)
+            vel = options.velocity if options.velocity is not None else info.velocity
+            metas.append((info.fs, info.depths, (gx, gy), (0.0, 0.0) if vel is None else tuple(abs(v) for v in vel),
+                          vel is not None, info.curvature_radius or PAPER_SENSOR.curvature_radius))
+        pos += stop - start
+    t_read = time.perf_counter() - t0
+    timings = {"read": t_read, "spectra": 0.0, "fit": 0.0}
+    if good:
+        n = len(good)
+        pad = [0] * (size - n)                          # copies of the first record, dropped after the fit
+        signals = np.stack(sigs + [sigs[i] for i in pad])
+        del sigs
+        allm = metas + [metas[i] for i in pad]
+        meta = ChunkMeta(fs=np.array([m[0] for m in allm], float), depths=np.array([m[1] for m in allm], float),
+                         gains=np.array([m[2] for m in allm], float), velocity=np.array([m[3] for m in allm], float),
+                         known=np.array([m[4] for m in allm], bool),
+                         curvature_radius=np.array([m[5] for m in allm], float))
+        program = _program(options, model)
+        before = dict(program.timings)
+        try:
+            fit = program(signals, meta)
+            fit_rows = chunk_rows(fit, meta, [g[1] for g in good], [g[2] for g in good], model=model, options=options)
+            for (p, _, _), row in zip(good, fit_rows):
+                rows[p] = row
+        except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume
+            text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+            for p, src, i in good:
+                rows[p] = _error_row(src, i, "worker_error", f"{src}: the chunk failed: {text}", model)
+        timings["spectra"] = program.timings["spectra"] - before["spectra"]
+        timings["fit"] = program.timings["fit"] - before["fit"]
+    return [rows[k] for k in sorted(rows)], timings
+
+
+# --------------------------------------------------------------------------- resume and output
+
+
+def _existing_rows(out: Path) -> list[dict]:
+    if not out.exists():
+        return []
+    if out.suffix.lower() == ".parquet":
+        try:
+            import pyarrow.parquet as pq
+        except ImportError:
+            raise TactileInputError("resuming a .parquet batch needs pyarrow", source=str(out),
+                                    code="bad_setting") from None
+        return pq.read_table(out).to_pylist()
+    from .results import read_results
+
+    return read_results(out)
+
+
+def _key(row: dict):
+    try:
+        return str(row.get("file")), int(row.get("index") or 0)
+    except (TypeError, ValueError):
+        return None
+
+
+class _Progress:
+    """One self-overwriting line on stderr: records done, rate, time left."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled, self.done, self.t0 = total, enabled and total > 0, 0, time.perf_counter()
+
+    def update(self, n: int):
+        self.done += n
+        if not self.enabled:
+            return
+        dt = time.perf_counter() - self.t0
+        rate = self.done / dt if dt > 0 else 0.0
+        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        eta = "--:--" if not math.isfinite(left) else f"{int(left // 60):02d}:{int(left % 60):02d}"
+        width = 30
+        fill = int(width * self.done / self.total)
+        sys.stderr.write(f"\r[{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} recordings"
+                         f"  {rate:.1f}/s  left {eta} ")
+        sys.stderr.flush()
+
+    def close(self):
+        if self.enabled:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 256, workers: int | None = None,
+              scheduler: str | None = None, progress: bool = True, resume: bool = True,
+              model: str | None = None) -> BatchSummary:
+    """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
+
+    inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
+        folders (searched recursively; files that are not recordings are skipped with a note).
+    out: results file, .json / .csv / .parquet (the format follows the suffix).
+    options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, solver).
+    chunk_size: records per compiled call (memory grows with it, not with the batch).
+    workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
+    scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
+    progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
+        status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
+    model: ``"pair"`` (exact R per probe pair, fast) or ``"joint"`` (2-D joint model); default
+        ``DEFAULT_MODEL``.
+
+    Raises ``TactileInputError`` only for bad settings (``out`` suffix, chunk size, model); bad
+    recordings become rows. ``n_failed`` counts rows whose status is not one of ``FIT_RAN``.
+    """
+    from .batch_fit import MODELS
+    from .results import RESULT_SUFFIXES, write_results
+
+    t_start = time.perf_counter()
+    out = Path(os.fspath(out))
+    model = DEFAULT_MODEL if model is None else model
+    if model not in MODELS:
+        raise TactileInputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}", code="bad_setting")
+    if out.suffix.lower() not in RESULT_SUFFIXES:
+        raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
+        raise TactileInputError(f"chunk_size must be an int >= 1; got {chunk_size!r}", code="bad_setting")
+    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
+        raise TactileInputError(f"workers must be >= 1; got {workers!r}", code="bad_setting")
+    options = _hashable(options)
+
+    infos, notes = scan_inputs(inputs)
+    t_scan = time.perf_counter() - t_start
+    kept = []
+    if resume:
+        kept = [r for r in _existing_rows(out) if r.get("status") not in TRANSIENT_STATUSES and _key(r) is not None]
+        for r in kept:
+            r["index"] = int(r["index"] or 0)               # CSV reads numbers back as float
+    done = {_key(r) for r in kept}
+    rows = list(kept)
+    n_skipped = 0
+    for info in infos:
+        n_skipped += sum((info.path, i) in done for i in range(max(info.n_records, 1)))
+        if info.error is not None and (info.path, 0) not in done:
+            rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model))
+    chunks = _plan(infos, done, int(chunk_size))
+    total = sum(stop - start for _, segs in chunks for _, start, stop in segs)
+    timings = {"scan": t_scan, "read": 0.0, "spectra": 0.0, "fit": 0.0, "write": 0.0}
+    bar = _Progress(total, progress)
+
+    def consume(new_rows, t):
+        rows.extend(new_rows)
+        for k in ("read", "spectra", "fit"):
+            timings[k] += t[k]
+        write()
+        bar.update(len(new_rows))
+
+    def write():
+        t0 = time.perf_counter()
+        rows.sort(key=lambda r: _key(r) or ("", 0))      # the same order however the chunks finished
+        write_results(out, rows)
+        timings["write"] += time.perf_counter() - t0
+
+    if len(rows) != len(kept):
+        write()                                           # rows of unreadable files: saved before any fit
+    import jax
+
+    x64 = bool(jax.config.jax_enable_x64)
+    cache_dir = jax.config.jax_compilation_cache_dir or None
+    try:
+        if workers is None and scheduler is None:
+            for size, segs in chunks:
+                consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
+        else:
+            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
+    finally:
+        bar.close()
+    if not chunks:
+        write()
+    n_failed = sum(1 for r in rows if r.get("status") not in FIT_RAN)
+    timings["total"] = time.perf_counter() - t_start
+    return BatchSummary(n_rows=len(rows), n_failed=n_failed, n_skipped=n_skipped, out=out, timings=timings,
+                        n_fitted=total, notes=notes, model=model)
+
+
+def _hashable(options: FitOptions) -> FitOptions:
+    """FitOptions with tuples where a user gave lists (the compiled program is keyed on them)."""
+    g = options.gain_ratio
+    if g is not None and not isinstance(g, (int, float)):
+        g = tuple(float(v) for v in np.atleast_1d(np.asarray(g, float)))
+    v = None if options.velocity is None else tuple(float(x) for x in options.velocity)
+    return dataclasses.replace(options, gain_ratio=g, velocity=v)
+
+
+def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
+    import dask
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler)
+        try:
+            futures = {}
+            for n, (size, segs) in enumerate(chunks):
+                part = [infos[fi] for fi, _, _ in segs]
+                fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, pure=False,
+                                    key=f"tactile-chunk-{n}-{os.getpid()}-{time.time_ns()}")
+                futures[fut] = (part, segs)
+            for fut in as_completed(futures):
+                part, segs = futures[fut]
+                try:
+                    consume(*fut.result())
+                except Exception as exc:  # noqa: BLE001 - a lost worker: the chunk's rows say so (transient)
+                    text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+                    lost = [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model)
+                            for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)]
+                    consume(lost, {"read": 0.0, "spectra": 0.0, "fit": 0.0})
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()

@@ -1,0 +1,149 @@
+"""Cramer-Rao bounds on slip speed and contact radius from the per-bin noise of the spectra.
+
+For weighted residuals r_i = (y_i - m_i(theta)) / sigma_i with independent
+Gaussian noise of sd sigma_i, the Fisher information is F = J^T J with
+J = dr / dtheta (``jax.jacfwd`` of the model at the truth), and any unbiased
+estimator has cov(theta) >= F^-1 (the free block; fixed parameters are known).
+Adjacent spectral bins are correlated: for a model that is smooth across bins
+the information of M correlated bins is that of M / ``bin_factor``
+independent ones (``CrossSpectra.bin_factor``), so F is divided by it.
+Parameters are fitted in log space; sd(v) = v sd(log v) is exact for the
+bound (its Jacobian is v). Two models:
+
+- ``pair_crb``: one probe pair's log AMPLITUDE ratio, log R_exact(omega / v; a)
+  + log g averaged over the spectral window (``pair_fit``'s model), noise
+  ``log_ratio_err`` per bin: the bound that the exact least-squares fit
+  (``pair_fit.fit_pair``) can reach.
+- ``joint_crb``: the 2-D joint model (``joint_model``) with its shallow log
+  PSDs (sd 1 / ``s11_weight``) and log ratios (sd ``h_err``); the texture
+  spectrum and other free parameters are nuisances whose uncertainty the
+  bound includes. Priors are left out unless ``include_priors``.
+
+Everything is pure jnp; enable float64 at the entry point for meaningful bounds.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import joint_model as jm
+from .pair_fit import _residuals as _pair_residuals
+
+__all__ = ["fisher_information", "bound_covariance", "Bound", "pair_crb", "joint_crb"]
+
+
+@partial(jax.jit, static_argnames=("residuals", "n_prior"))
+def fisher_information(residuals: Callable, theta, args, free, *, n_prior: int = 0, bin_factor=1.0):
+    """Fisher information J^T J / bin_factor of the data residuals at ``theta``: (P, P).
+
+    residuals: ``residuals(theta, args) -> (n,)`` weighted residuals (zero where
+    masked), the last ``n_prior`` of them priors (left out). free: (P,) bool;
+    fixed parameters get zero rows and columns.
+    """
+    theta = jnp.asarray(theta)
+    jac = jax.jacfwd(residuals)(theta, args)
+    jac = jac[: jac.shape[0] - n_prior] * jnp.asarray(free, bool)[None, :]
+    return jac.T @ jac / bin_factor
+
+
+@jax.jit
+def bound_covariance(fisher, free):
+    """The Cramer-Rao covariance: inverse of the free block of ``fisher`` (zeros elsewhere).
+
+    Inverted after scaling to unit diagonal (the information on log v and on
+    log-texture knots can differ by many decades); a direction with no
+    information gives an infinite variance, not a silently finite one.
+    """
+    free = jnp.asarray(free, bool)
+    p = fisher.shape[0]
+    diag = jnp.diag(fisher)
+    seen = free & (diag > 0)
+    d = jnp.where(seen, jnp.sqrt(jnp.where(diag > 0, diag, 1.0)), 1.0)
+    scaled = fisher / (d[:, None] * d[None, :])
+    scaled = jnp.where(seen[:, None] & seen[None, :], scaled, jnp.eye(p))
+    cov = jnp.linalg.inv(scaled) / (d[:, None] * d[None, :])
+    cov = jnp.where(seen[:, None] & seen[None, :], cov, 0.0)
+    blind = free & ~seen
+    inf_var = jnp.where(blind, jnp.inf, 0.0)
+    return cov + jnp.diag(inf_var)
+
+
+class Bound(NamedTuple):
+    """Cramer-Rao one-sigma bounds (SI units) and the covariance they come from.
+
+    speed_sd: (|vx|,) for a pair or (|vx|, |vy|) for the joint model, m/s.
+    a_sd: contact radius, m. log_cov: (P, P) bound on the covariance of the
+    internal (log) parameters. fisher: (P, P) Fisher information.
+    """
+
+    speed_sd: jax.Array
+    a_sd: jax.Array
+    log_cov: jax.Array
+    fisher: jax.Array
+
+
+def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fit_gain=False,
+             kernel=((0.0,), (1.0,)), bin_factor=1.0) -> Bound:
+    """Cramer-Rao bound on |v| and a from one pair's log AMPLITUDE ratio (the exact R model).
+
+    omega: (M,) rad/s. log_ratio_err: (M,) one-sigma noise of log|P2/P1| per
+    bin. mask: (M,) bins used. d1, d2: depths, m. speed: true |v| along the
+    pair, m/s. a: true contact radius, m. gain_ratio: deep/shallow gain (known
+    unless ``fit_gain``, which adds it as a nuisance). kernel: the spectra's
+    spectral window ``(offsets in bins, weights)``, as in ``fit_pair``.
+    bin_factor: correlation of adjacent bins (``CrossSpectra.bin_factor``).
+    """
+    err = jnp.asarray(log_ratio_err)
+    mask = jnp.asarray(mask, bool) & jnp.isfinite(err) & (err > 0)
+    offsets, weights = (np.asarray(k, float) for k in kernel)
+    keep = weights > 0
+    omega = jnp.asarray(omega)
+    args = (omega, jnp.zeros_like(omega), jnp.where(mask, err, 1.0), mask, d1, d2,
+            jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
+    theta = jnp.log(jnp.asarray([speed, a, gain_ratio], dtype=omega.dtype))
+    free = jnp.array([True, True, bool(fit_gain)])
+    fisher = fisher_information(_pair_residuals, theta, args, free, bin_factor=bin_factor)
+    cov = bound_covariance(fisher, free)
+    sd = jnp.sqrt(jnp.diag(cov))
+    return Bound(speed * sd[:1], a * sd[1], cov, fisher)
+
+
+def joint_crb(theta, data: jm.ModelData, free, *, bin_factor=1.0, include_priors: bool = False) -> Bound:
+    """Cramer-Rao bound on |vx|, |vy| and a under the joint 2-D model (``joint_model``).
+
+    theta: (P,) internal parameters at the truth (log speeds in m/s, log a in m;
+    the texture knots, a nuisance, for example at their fitted values).
+    data: the ``ModelData`` of a fit (its masks and per-bin errors give the
+    noise; its measured values are not used). free: (P,) bool, which
+    parameters are unknown. bin_factor: correlation of adjacent bins, applied
+    to the log-ratio residuals (``h_err`` counts bins as independent;
+    ``s11_weight`` = sqrt(K / bin_factor) already includes it).
+    include_priors: add the model's prior residuals to the information (a
+    Bayesian bound); by default only the data count.
+    """
+    theta = jnp.asarray(theta)
+    # the log-PSD residuals' weight sqrt(K / bin_factor) already counts correlated bins; the ratios' errors do not
+    fisher = (fisher_information(_joint_log_psd, theta, data, free)
+              + fisher_information(_joint_log_ratio, theta, data, free, bin_factor=bin_factor))
+    if include_priors:
+        fisher = fisher + fisher_information(_joint_priors, theta, data, free)
+    cov = bound_covariance(fisher, free)
+    sd = jnp.sqrt(jnp.diag(cov))
+    return Bound(jnp.exp(theta[:2]) * sd[:2], jnp.exp(theta[2]) * sd[2], cov, fisher)
+
+
+def _joint_priors(theta, data):
+    return jm.residuals(theta, data)[-jm.n_prior_residuals(theta.shape[0]):]
+
+
+def _joint_log_psd(theta, data):
+    return jm.residuals(theta, data)[: 2 * data.omega.shape[0]]
+
+
+def _joint_log_ratio(theta, data):
+    return jm.residuals(theta, data)[2 * data.omega.shape[0]: 4 * data.omega.shape[0]]

@@ -1,0 +1,234 @@
+"""Numerical stability on hard cases (issue 5): honest numbers or a clear status, never a silent NaN.
+
+Every case is a short (4 s) seeded recording through the full pipeline
+(``fit_recording``), sharing one compiled shape where possible. A result is
+acceptable when each reported quantity is finite with an error bar that
+contains the truth within 5 sigma, or is withheld (None) with a message and,
+for a and the speeds, a bound on the right side of the truth; or the status
+says why nothing was fitted. A result outside 5 sigma with status "ok" is a
+confident wrong answer and fails.
+"""
+
+import dataclasses
+import math
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tactile_jax.fit import FitOptions, fit_recording, fit_spectra
+from tactile_jax.io import SpectraData
+from tactile_jax.pair_fit import _residuals as pair_residuals
+from tactile_jax.r_curve import log_g, log_r_exact
+from tactile_jax.recording import Recording
+from tactile_jax.scene import Scene, simulate
+from tactile_jax.spectra import amplitude_ratio, estimate_spectra
+from tactile_jax.texture import RandomTexture
+
+#: the cases that run the full joint fit cost 10-90 s each on 2 cores (benchmarks/profile_stages.py):
+#: opt in with TACTILE_JAX_SLOW=1; the default run keeps the cheap cases (CI budget)
+slow = pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
+                          reason="joint-fit stability case: set TACTILE_JAX_SLOW=1 (~5 min on 2 cores)")
+
+DURATION = 4.0
+N_SIGMA = 5.0
+BASE = Scene(texture=RandomTexture(), velocity=(0.03, 0.0), contact_radius=2e-3, duration=DURATION, snr_db=40.0, seed=3)
+
+
+def _floats(res):
+    for name in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "a_lower", "vx_upper", "vy_upper", "gain_ratio",
+                 "gain_ratio_err", "redchi", "contact_depth", "contact_depth_err"):
+        v = getattr(res, name)
+        if v is not None:
+            yield name, v
+
+
+def assert_honest(res, truth: dict, *, allowed=("ok", "poor_fit", "no_band", "not_converged")):
+    """Finite numbers whose error bars hold the truth, or a withheld value with a message and a bound."""
+    assert res.status in allowed, (res.status, res.message)
+    for name, v in _floats(res):
+        assert math.isfinite(v), f"{name} = {v} (silent non-finite value); status {res.status}: {res.message}"
+    if res.status == "no_band":
+        assert res.message and res.vx is None and res.a is None
+        return
+    if res.status != "ok":
+        assert res.message, "a status other than ok must say why"
+    for name, true in truth.items():
+        value, err = getattr(res, name), getattr(res, name + "_err", None)
+        if value is None:
+            assert res.message, f"{name} withheld without a message"
+            if name == "a" and res.a_lower is not None:
+                assert res.a_lower <= true * 1.05, f"a_lower {res.a_lower} above the truth {true}"
+            continue
+        if err is None:         # a fixed parameter
+            continue
+        assert err > 0, f"{name}_err = {err}"
+        z = abs(value - true) / err
+        assert z <= N_SIGMA or res.status != "ok", (
+            f"confident wrong answer: {name} = {value:.4g} +/- {err:.2g}, truth {true:.4g} ({z:.1f} sigma), "
+            f"status ok; message: {res.message}")
+
+
+def _truth(scene, with_a=True):
+    t = {"vx": abs(scene.velocity[0]), "vy": abs(scene.velocity[1])}
+    if with_a:
+        t["a"] = scene.a
+    return t
+
+
+@pytest.fixture(scope="module")
+def base_rec():
+    return simulate(BASE)
+
+
+@pytest.fixture(scope="module")
+def base_fit(base_rec):
+    return fit_recording(base_rec, FitOptions())
+
+
+@slow
+def test_baseline_is_honest(base_fit):
+    assert_honest(base_fit, _truth(BASE))
+    assert base_fit.vx == pytest.approx(BASE.velocity[0], rel=0.05)
+
+
+@slow
+@pytest.mark.xfail(strict=True, reason="fit._fit_cross_spectra: on this plain 4 s scene the full joint LM hits "
+                   "max_steps=256 on 2 of 3 starts at a stable chi2 (12.19), so status is not_converged "
+                   "(benchmarks/profile_stages.py: these capped solves are ~45 % of the fit time)")
+def test_plain_scene_converges(base_fit):
+    assert base_fit.status == "ok", base_fit.message
+
+
+@slow
+def test_float32_input_with_dc_offsets(base_rec, base_fit):
+    """float32 samples carrying DC offsets of 10x the signal rms: computed in float64, offsets removed."""
+    x = np.asarray(base_rec.signals, float)
+    x = x + 10 * x.std(axis=-1, keepdims=True) * np.array([1.0, -2.0, 3.0, 0.5])[:, None]
+    res = fit_recording(dataclasses.replace(base_rec, signals=x.astype(np.float32)), FitOptions())
+    assert_honest(res, _truth(BASE))
+    assert res.precision == "float64"
+    assert res.status == base_fit.status
+    assert res.vx == pytest.approx(base_fit.vx, abs=0.5 * base_fit.vx_err)
+
+
+@slow
+@pytest.mark.xfail(strict=True, reason="fit: with fit_gain=True and the deep probes 40 % hot, the 95 % profile "
+                   "lower bound on a is 3.19 mm for a true 2 mm (and |vx| 4.44 +/- 0.39 cm/s for 3.0): the bound "
+                   "profiles a with the gain free but from the biased optimum")
+def test_unknown_gain_mismatch_fitted(base_rec):
+    """Deep probes 40 % hot and not calibrated: fit_gain must widen a, not bias it silently."""
+    x = np.asarray(base_rec.signals, float) * np.array([1.0, 1.4, 1.0, 1.4])[:, None]
+    res = fit_recording(dataclasses.replace(base_rec, signals=x), FitOptions(fit_gain=True))
+    assert_honest(res, _truth(BASE))
+    if res.gain_ratio_err is not None:
+        assert abs(res.gain_ratio - 1.4) <= N_SIGMA * res.gain_ratio_err
+
+
+@slow
+def test_clipped_signals(base_rec):
+    x = np.asarray(base_rec.signals, float)
+    level = 0.5 * np.abs(x[0]).max()
+    res = fit_recording(dataclasses.replace(base_rec, signals=np.clip(x, -level, level)), FitOptions())
+    assert_honest(res, _truth(BASE))
+
+
+SCENES = {
+    # a 0.1 mm contact: R -> d1 / d2 flat; speed information only from the faint remaining slope
+    "contact_0.1mm": dataclasses.replace(BASE, contact_radius=1e-4, seed=4),
+    # a 50 mm contact (Eq. 5 regime): a is not measurable, expect a lower bound; 120 um grid keeps it small
+    "contact_50mm": dataclasses.replace(BASE, contact_radius=50e-3, grid_spacing=120e-6, seed=5),
+    # 3 mm/s: the band sits at a few Hz
+    "slow_near_dc": dataclasses.replace(BASE, velocity=(0.003, 0.0), seed=6),
+    # 20 cm/s: the deep probe's band reaches Nyquist (aliasing, as an unfiltered ADC would)
+    "fast_near_nyquist": dataclasses.replace(BASE, velocity=(0.2, 0.0), seed=7),
+    "snr_0db": dataclasses.replace(BASE, snr_db=0.0, seed=8),
+    # the deep probes 60 dB down: drowned in the (shallow-referenced) noise
+    "deep_drowned": dataclasses.replace(BASE, gains=(1.0, 1e-3, 1.0, 1e-3), seed=9),
+}
+
+
+#: cases whose fit stops early (no_band): cheap, always run
+QUICK = ("slow_near_dc", "snr_0db", "deep_drowned")
+
+
+@pytest.mark.parametrize("name", [n if n in QUICK else pytest.param(n, marks=slow) for n in SCENES
+                                  if n != "contact_50mm"])
+def test_hard_scenes(name):
+    scene = SCENES[name]
+    res = fit_recording(simulate(scene), FitOptions())
+    assert_honest(res, _truth(scene))
+    if name == "deep_drowned":
+        assert res.status == "no_band", (res.status, res.message)
+
+
+@slow
+@pytest.mark.xfail(strict=True, reason="fit: a 50 mm contact (4 s, 3 cm/s along x, 40 dB) gives a = 4.28 +/- 1.5 mm "
+                   "with status ok (31 sigma from the truth) and |vy| 4.3 +/- 2.3 cm/s for 0: the window's "
+                   "curvature is below the noise, a should be withheld with a lower bound")
+def test_large_contact_is_a_bound_not_a_confident_radius():
+    scene = SCENES["contact_50mm"]
+    res = fit_recording(simulate(scene), FitOptions())
+    assert_honest(res, _truth(scene))
+    assert res.a is None and res.a_lower is not None, (res.a, res.a_err, res.message)
+
+
+def _zeroed_spectra(rec):
+    spec = estimate_spectra(np.asarray(rec.signals, float), rec.fs)
+    psd, csd = np.array(spec.psd), np.array(spec.csd)
+    psd[:, 5:9] = 0.0                                  # a dead band (a notch filter)
+    csd[:, 5:9] = 0.0
+    csd[1, 12] = 0.0                                   # one cross-spectrum bin only
+    return spec, psd, csd
+
+
+@slow
+def test_spectra_with_exact_zeros_joint(base_rec):
+    """Zeroed PSD/CSD bins in a spectra file through the joint model: dropped, never NaN."""
+    spec, psd, csd = _zeroed_spectra(base_rec)
+    data = SpectraData(np.asarray(spec.omega), psd=psd, csd=csd, n_segments=spec.n_segments,
+                       depths=base_rec.depths, kernel=np.asarray(spec.kernel), bin_factor=spec.bin_factor)
+    assert_honest(fit_spectra(data, FitOptions()), _truth(BASE))
+
+
+def test_ratio_spectra_with_exact_zeros(base_rec):
+    """Ratio-only spectra with exact zeros (log -inf) and an infinite error: skipped by the pair fits."""
+    spec, psd, csd = _zeroed_spectra(base_rec)
+    ratio = np.abs(csd) / np.where(psd[[0, 2]] > 0, psd[[0, 2]], 1.0)
+    err = np.array(amplitude_ratio(spec).log_ratio_err)        # Bendat & Piersol errors of the unzeroed bins
+    err[:, 20] = np.inf
+    res = fit_spectra(SpectraData(np.asarray(spec.omega), ratio=ratio, ratio_err=err, depths=base_rec.depths))
+    assert res.status in ("ok", "not_converged", "no_band"), (res.status, res.message)
+    for name, v in _floats(res):
+        assert math.isfinite(v), (name, v, res.status, res.message)
+    assert abs(res.vx - BASE.velocity[0]) <= N_SIGMA * res.vx_err, (res.vx, res.vx_err)
+
+
+def test_extreme_alpha_d_values_and_gradients():
+    """alpha d from 1e-9 to 1e5, a from 1 um to 1 m: log R and the pair model's Jacobian stay finite."""
+    d1, d2 = 0.265e-3, 0.925e-3
+    alpha = jnp.asarray(np.geomspace(1e-6, 1e8, 60))
+    for a in (1e-6, 1e-4, 1e-2, 1.0):
+        lr = log_r_exact(alpha, d1, d2, a)
+        assert bool(jnp.all(jnp.isfinite(lr))), a
+        assert bool(jnp.all(lr <= 1e-12)), a                       # the deep probe never hears more
+        g = jax.vmap(jax.grad(lambda al: log_g(al, d2, a)))(alpha)
+        assert bool(jnp.all(jnp.isfinite(g))), a
+    omega = jnp.linspace(1.0, 3e3, 64)
+    args = (omega, jnp.zeros(64), jnp.full(64, 0.1), jnp.ones(64, bool), d1, d2, jnp.zeros(1), jnp.zeros(1))
+    for log_v, log_a in ((np.log(1e-6), np.log(1e-6)), (np.log(10.0), np.log(0.1)), (np.log(1e-6), np.log(1.0)),
+                         (np.log(10.0), np.log(1e-6))):
+        theta = jnp.asarray([log_v, log_a, 0.0])
+        r = pair_residuals(theta, args)
+        jac = jax.jacfwd(pair_residuals)(theta, args)
+        assert bool(jnp.all(jnp.isfinite(r))) and bool(jnp.all(jnp.isfinite(jac))), (log_v, log_a)
+
+
+def test_recording_of_zeros_is_a_status_not_nan():
+    rec = Recording(np.zeros((4, int(DURATION * 1000))), 1000.0, (0.265e-3, 0.925e-3))
+    res = fit_recording(rec, FitOptions())
+    assert res.status == "no_band" and res.message
+    for name, v in _floats(res):
+        assert math.isfinite(v), (name, v)
