@@ -37,7 +37,7 @@ from tactile_jax import texture as textures
 from tactile_jax.errors import TactileInputError
 from tactile_jax.fit import FitOptions, fit_recording, leakage_only
 from tactile_jax.lsq import least_squares
-from tactile_jax.plotting import provenance
+from tactile_jax.plotting import provenance, save_figure
 from tactile_jax.r_curve import log_r_exact, log_r_hertz
 
 HERE = Path(__file__).resolve().parent
@@ -262,12 +262,8 @@ def _dev(ours, ref):
 
 
 def _save(fig, path: Path) -> Path:
-    fig.text(0.01, 0.005, provenance(), fontsize=6, color="0.4")
     fig.tight_layout(rect=(0, 0.025, 1, 1))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def _sensor_depths(scene):

@@ -29,7 +29,6 @@ import math
 import os
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -113,18 +112,6 @@ def _walk(inputs) -> tuple[list[str], list[str]]:
     return unique, notes
 
 
-def _npz_header(path: str):
-    with zipfile.ZipFile(path) as zf:
-        name = "signals.npy"
-        if name not in zf.namelist():
-            return None
-        with zf.open(name) as fh:
-            version = np.lib.format.read_magic(fh)
-            reader = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-            shape, _, dtype = reader(fh)
-    return shape, dtype
-
-
 def _scan(path: str) -> _FileInfo:
     """Read a recording file's metadata and the shape of ``signals`` without reading the samples."""
     from . import io as tio
@@ -132,33 +119,8 @@ def _scan(path: str) -> _FileInfo:
 
     info = _FileInfo(path)
     try:
-        p = Path(path)
-        kind = tio._kind(p, path)
-        if not p.is_file():
-            raise TactileInputError("file not found" if not p.exists() else "not a regular file", source=path,
-                                    code="unreadable")
-        if kind == "hdf5":
-            import h5py
-
-            try:
-                f = h5py.File(p, "r")
-            except Exception as exc:
-                raise TactileInputError(f"not a readable HDF5 file ({tio._brief(exc)})", source=path,
-                                        code="unreadable") from None
-            with f:
-                store = tio._H5Store(f, path)
-                shape, dtype = _require(store, path, lambda: (f["signals"].shape, f["signals"].dtype)
-                                        if isinstance(f.get("signals"), h5py.Dataset) else None)
-                meta = _meta(store, path)
-        else:
-            with p.open("rb") as fh:
-                if fh.read(2) != b"PK":
-                    raise TactileInputError("not a valid NPZ archive (no zip signature)", source=path, code="unreadable")
-            with np.load(p, allow_pickle=False) as z:
-                store = tio._NpzStore(z, path)
-                shape, dtype = _require(store, path, lambda: _npz_header(path))
-                meta = _meta(store, path)
-        info.kind = kind
+        shape, dtype, meta = tio.read_recording_header(path)
+        info.kind = tio._kind(Path(path), path)
         if np.dtype(dtype).kind not in "fiu":
             raise TactileInputError("signals must be a real numeric array", source=path, code="bad_shape")
         if len(shape) not in (2, 3) or shape[-2] != 4:
@@ -180,31 +142,6 @@ def _scan(path: str) -> _FileInfo:
     except Exception as exc:  # noqa: BLE001 - a file the readers did not foresee
         info.error = TactileInputError(f"cannot read file: {type(exc).__name__}: {exc}", source=path, code="unreadable")
     return info
-
-
-def _require(store, path, shape_of):
-    from .io import _RECORDING_KEYS
-
-    keys = store.keys()
-    for key in _RECORDING_KEYS:
-        if key not in keys:
-            hint = " (this looks like a spectra file: fit it with 'tactile-jax fit')" if "omega" in keys else ""
-            raise TactileInputError(f"missing key '{key}'; a recording needs 'signals', 'fs' and 'depths'{hint}",
-                                    source=path, code="missing_key")
-    got = shape_of()
-    if got is None:                                   # signals stored as an attribute: read it (small)
-        sig = np.asarray(store.get("signals"))
-        return sig.shape, sig.dtype
-    return got
-
-
-def _meta(store, path) -> dict:
-    from . import io as tio
-
-    meta = {"fs": tio._real_scalar(store.get("fs"), "fs", path, "bad_fs"),
-            "depths": tio._depth_pair(store.get("depths"), path)}
-    meta.update(tio._optional_values(store.get, path))
-    return meta
 
 
 def scan_inputs(inputs) -> tuple[list[_FileInfo], list[str]]:
@@ -240,11 +177,12 @@ def _read_records(info: _FileInfo, start: int, stop: int) -> np.ndarray:
 
 
 def _gains(info: _FileInfo, options: FitOptions) -> tuple[float, float]:
-    g = options.gain_ratio if options.gain_ratio is not None else info.gain_ratio
-    if g is None:
-        return 1.0, 1.0
-    g = np.atleast_1d(np.asarray(g, float))
-    return float(g[0]), float(g[-1])
+    """(gx, gy): the options' known gain ratios, else the file's, else 1 (as ``fit``)."""
+    from .fit import _gains as known_gains
+
+    if options.gain_ratio is None:
+        options = dataclasses.replace(options, gain_ratio=info.gain_ratio)
+    return known_gains(options)
 
 
 def _error_row(src: str, index: int, code: str, message: str, model: str) -> dict:

@@ -302,7 +302,7 @@ def write_figures(out_dir, *, tol: float = 0.05, speeds=(0.023, 0.047), fs: floa
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    from .plotting import provenance
+    from .plotting import save_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -321,11 +321,7 @@ def write_figures(out_dir, *, tol: float = 0.05, speeds=(0.023, 0.047), fs: floa
            title=f"|log R_rough - log R_exact| at d1/d2 = {_D1 / _D2:.3f}\nwhite: {tol:g} (rough valid to its right)")
     ax.legend(loc="lower right", fontsize=8)
     fig.colorbar(m, ax=ax)
-    fig.text(0.01, 0.005, provenance(), fontsize=6)
-    p = out / "rough_vs_exact_plane.png"
-    fig.savefig(p, dpi=120)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(save_figure(fig, out / "rough_vs_exact_plane.png"))
 
     # 2. the paper's sensor: alpha and a, with the alpha band of 1-fs/2 Hz at a few speeds
     alpha = np.geomspace(10.0, 1e5, 300)
@@ -347,11 +343,7 @@ def write_figures(out_dir, *, tol: float = 0.05, speeds=(0.023, 0.047), fs: floa
                  f"white: {tol:g} (rough valid to its right); dashed: a = 0.85, 2.2 mm")
     ax.legend(loc="upper right", fontsize=7)
     fig.colorbar(m, ax=ax)
-    fig.text(0.01, 0.005, provenance(), fontsize=6)
-    p = out / "rough_vs_exact_sensor.png"
-    fig.savefig(p, dpi=120)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(save_figure(fig, out / "rough_vs_exact_sensor.png"))
 
     # 3. Gaussian vs Hertz window (equal second moment), dimensionless
     x = np.geomspace(1e-1, 30.0, 160)
@@ -364,9 +356,5 @@ def write_figures(out_dir, *, tol: float = 0.05, speeds=(0.023, 0.047), fs: floa
     ax.set(xscale="log", yscale="log", xlabel="alpha a_hertz", ylabel="d2 / a_hertz",
            title="|log R_gauss(a) - log R_hertz(a)| (1-D texture, equal radius)\n" + f"white: {tol:g}")
     fig.colorbar(m, ax=ax)
-    fig.text(0.01, 0.005, provenance(), fontsize=6)
-    p = out / "gauss_vs_hertz_plane.png"
-    fig.savefig(p, dpi=120)
-    plt.close(fig)
-    paths.append(p)
+    paths.append(save_figure(fig, out / "gauss_vs_hertz_plane.png"))
     return paths

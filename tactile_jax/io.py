@@ -39,6 +39,7 @@ from .recording import Recording, validate_recording
 __all__ = [
     "RECORDING_SUFFIXES",
     "SpectraData",
+    "read_recording_header",
     "is_recording_file",
     "read_recording",
     "read_spectra",
@@ -227,6 +228,14 @@ class _H5Store:
             raise TactileInputError(f"'{key}' is empty", source=self._src, code="bad_shape")
         return value
 
+    def shape_of(self, key: str):
+        """(shape, dtype) of a stored array without reading a dataset's data; None when absent."""
+        obj = self._f.get(key)
+        if isinstance(obj, h5py.Dataset):
+            return obj.shape, obj.dtype
+        value = self.get(key)
+        return None if value is None else (np.shape(value), np.asarray(value).dtype)
+
 
 class _NpzStore:
     """Members of an open ``.npz`` archive (no pickles)."""
@@ -245,6 +254,17 @@ class _NpzStore:
         except Exception as exc:
             raise TactileInputError(f"cannot read '{key}': {_brief(exc)}", source=self._src,
                                     code="unreadable") from None
+
+    def shape_of(self, key: str):
+        """(shape, dtype) of a member from its .npy header, without reading the data; None when absent."""
+        if key not in self._z.files:
+            return None
+        with self._z.zip.open(f"{key}.npy") as fh:
+            version = np.lib.format.read_magic(fh)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(fh)
+        return shape, dtype
 
 
 def _read(path: Path, src: str, parse: Callable):
@@ -284,19 +304,41 @@ def _read(path: Path, src: str, parse: Callable):
 
 
 def _recording_from_store(store, src: str) -> Recording:
+    meta = _recording_meta(store, src, "use read_spectra")
+    signals = _native(np.asarray(store.get("signals")))
+    return Recording(signals=signals, truth=_decode_truth(store.get("truth"), src), source=src, **meta)
+
+
+def _recording_meta(store, src: str, spectra_hint: str) -> dict[str, Any]:
+    """Check the recording keys; return fs, depths and the optional fields (the samples are not read)."""
     keys = store.keys()
     for key in _RECORDING_KEYS:
         if key not in keys:
-            hint = " (this looks like a spectra file: use read_spectra)" if "omega" in keys else ""
+            hint = f" (this looks like a spectra file: {spectra_hint})" if "omega" in keys else ""
             raise TactileInputError(
                 f"missing key '{key}'; a recording needs 'signals', 'fs' and 'depths'{hint}",
                 source=src, code="missing_key")
-    signals = _native(np.asarray(store.get("signals")))
-    fs = _real_scalar(store.get("fs"), "fs", src, "bad_fs")
-    depths = _depth_pair(store.get("depths"), src)
-    opt = _optional_values(store.get, src)
-    return Recording(signals=signals, fs=fs, depths=depths, truth=_decode_truth(store.get("truth"), src),
-                     source=src, **opt)
+    meta = {"fs": _real_scalar(store.get("fs"), "fs", src, "bad_fs"), "depths": _depth_pair(store.get("depths"), src)}
+    meta.update(_optional_values(store.get, src))
+    return meta
+
+
+def read_recording_header(path) -> tuple[tuple[int, ...], np.dtype, dict[str, Any]]:
+    """The shape and dtype of a recording's ``signals`` and its metadata, without reading the samples.
+
+    Returns ``(shape, dtype, meta)`` with ``meta`` holding ``fs`` (Hz), ``depths`` (m) and the
+    optional ``curvature_radius``, ``velocity``, ``gain_ratio`` (None when absent). Raises
+    ``TactileInputError`` as ``read_recording`` does for unreadable files and missing keys;
+    the shape and values are not validated here (see ``recording.validate_recording``).
+    """
+    path, src = _as_path(path)
+
+    def parse(store, s):
+        meta = _recording_meta(store, s, "fit it with 'tactile-jax fit'")
+        shape, dtype = store.shape_of("signals")
+        return tuple(shape), np.dtype(dtype), meta
+
+    return _read(path, src, parse)
 
 
 # --------------------------------------------------------------------------- validation helpers
@@ -374,27 +416,25 @@ def _estimator_values(get: Callable[[str], Any], src: str) -> dict[str, Any]:
                 raise TactileInputError(f"'{key}' must be positive and finite, got {value}", source=src,
                                         code="bad_setting")
             out[key] = value
-    kernel = get("kernel")
-    if kernel is not None:
-        k = np.asarray(kernel)
-        if k.dtype.kind not in "fiu" or k.ndim != 2 or k.shape[0] != 2 or k.shape[1] < 1:
-            raise TactileInputError(f"'kernel' must be a (2, J) array of bin offsets and weights, got {_describe(k)}",
-                                    source=src, code="bad_shape")
-        k = _finite(k.astype(np.float64), "kernel", src)
-        if np.any(k[1] < 0) or not np.isclose(k[1].sum(), 1.0, rtol=1e-6):
-            raise TactileInputError("'kernel' weights (second row) must be >= 0 and sum to 1", source=src,
-                                    code="bad_shape")
-        out["kernel"] = k
-    whitening = get("whitening")
-    if whitening is not None:
-        w = np.asarray(whitening)
-        if w.dtype.kind not in "fiu" or w.ndim != 2 or w.shape[0] != 2 or w.shape[1] < 1:
-            raise TactileInputError(f"'whitening' must be a (2, p + 1) array of AR error filters, got {_describe(w)}",
-                                    source=src, code="bad_shape")
-        out["whitening"] = _finite(w.astype(np.float64), "whitening", src)
-        if out["fs"] is None:
-            raise TactileInputError("'whitening' given without 'fs' (Hz)", source=src, code="missing_key")
+    kernel = _two_rows(get("kernel"), "kernel", "(2, J) array of bin offsets and weights", src)
+    if kernel is not None and (np.any(kernel[1] < 0) or not np.isclose(kernel[1].sum(), 1.0, rtol=1e-6)):
+        raise TactileInputError("'kernel' weights (second row) must be >= 0 and sum to 1", source=src,
+                                code="bad_shape")
+    out["kernel"] = kernel
+    out["whitening"] = _two_rows(get("whitening"), "whitening", "(2, p + 1) array of AR error filters", src)
+    if out["whitening"] is not None and out["fs"] is None:
+        raise TactileInputError("'whitening' given without 'fs' (Hz)", source=src, code="missing_key")
     return out
+
+
+def _two_rows(value, key: str, what: str, src: str) -> np.ndarray | None:
+    """A finite real (2, J >= 1) float64 array, or None when absent."""
+    if value is None:
+        return None
+    a = np.asarray(value)
+    if a.dtype.kind not in "fiu" or a.ndim != 2 or a.shape[0] != 2 or a.shape[1] < 1:
+        raise TactileInputError(f"'{key}' must be a {what}, got {_describe(a)}", source=src, code="bad_shape")
+    return _finite(a.astype(np.float64), key, src)
 
 
 def _matrix(value, key: str, rows: int, m: int, src: str, *, complex_ok: bool = False) -> np.ndarray:

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_ratio_figure", "provenance"]
+__all__ = ["plot_ratio_figure", "provenance", "save_figure"]
 
 
 def provenance() -> str:
@@ -22,6 +22,16 @@ def provenance() -> str:
 
     return (f"tactile_jax {__version__}, jax {jax.__version__}, numpy {np.__version__}; "
             f"{platform.machine()} {platform.system()}, {platform.python_implementation()} {platform.python_version()}")
+
+
+def save_figure(fig, path, *, dpi: int = 120) -> Path:
+    """Stamp ``provenance()`` in the footer, write ``fig`` to ``path`` (folders made) and close it."""
+    fig.text(0.01, 0.005, provenance(), fontsize=6, color="0.4")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
 
 
 def plot_ratio_figure(path, *, freq, psd_shallow, psd_deep, omega, log_ratio, log_ratio_err, band,

@@ -16,6 +16,7 @@ from tactile_jax.io import (
     SpectraData,
     is_recording_file,
     read_recording,
+    read_recording_header,
     read_spectra,
     write_recording,
     write_spectra,
@@ -411,3 +412,17 @@ def test_write_spectra_validates(tmp_path):
         write_spectra(path, SpectraData(omega=np.arange(4.0), depths=DEPTHS))
     assert info.value.code == "missing_key"
     assert not path.exists() and _leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_recording_header_without_samples(tmp_path, suffix):
+    path = write_recording(tmp_path / f"rec{suffix}", _recording((3, 4, 64), np.float64, velocity=(0.02, 0.0)))
+    shape, dtype, meta = read_recording_header(path)
+    full = read_recording(path)
+    assert shape == full.signals.shape and dtype == full.signals.dtype
+    assert meta["fs"] == full.fs and meta["depths"] == full.depths and meta["velocity"] == (0.02, 0.0)
+    spec = write_spectra(tmp_path / f"spec{suffix}", SpectraData(omega=np.arange(3.0), ratio=np.ones((2, 3)),
+                                                                 depths=DEPTHS))
+    with pytest.raises(TactileInputError) as info:
+        read_recording_header(spec)
+    assert info.value.code == "missing_key" and "tactile-jax fit" in str(info.value)
