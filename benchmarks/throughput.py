@@ -113,7 +113,7 @@ def one_size(size: int, args) -> dict:
 
     clean, noise, truth = _pool(Path(args.out) / f"throughput_pool_{args.pool}.npz", args.pool)
     chunk = min(args.chunk, size)
-    program = FitProgram(options=FitOptions(), model=args.model)
+    program = FitProgram(options=FitOptions(), model=args.model, solver=args.solver)
     nperseg = default_nperseg(N_SAMPLES - (FitOptions().prewhiten or 0))
 
     def meta(b):
@@ -171,7 +171,7 @@ def one_size(size: int, args) -> dict:
         ref.welch_floor(x, FS, nperseg)
         t_floor += time.perf_counter() - t1
     return {
-        "size": size, "chunk": chunk, "model": args.model, "compile_s": t_first - t_again, "first_chunk_s": t_first,
+        "size": size, "chunk": chunk, "model": args.model, "solver": args.solver, "compile_s": t_first - t_again, "first_chunk_s": t_first,
         "batch_s": t_run, "batch_rate": size / t_run, "spectra_s": program.timings["spectra"],
         "fit_s": program.timings["fit"], "scipy_rate": n_timed / t_sp, "scipy_n": n_sp, "scipy_timed": n_timed,
         "floor_rate": n_floor / t_floor, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -181,6 +181,56 @@ def one_size(size: int, args) -> dict:
         "err_batch_common": {"v": _stats(dv[:n_sp][both]), "a": _stats(da[:n_sp][both])},
         "err_scipy_common": {"v": _stats(dv_sp[both]), "a": _stats(da_sp[both])},
     }
+
+
+def compare_solvers(n: int, args) -> dict:
+    """The pair model with gauss_newton and with optimistix LM on the same ``n`` records: differences
+    in units of the error bars, statuses, stage times. Prints a summary, writes solvers_pair.json."""
+    import collections
+
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+
+    from tactile_jax.batch_fit import ChunkMeta, FitProgram
+
+    clean, noise, truth = _pool(Path(args.out) / f"throughput_pool_{args.pool}.npz", args.pool)
+    chunk = min(args.chunk, n)
+    meta = ChunkMeta(fs=np.full(chunk, FS), depths=np.tile([0.265e-3, 0.925e-3], (chunk, 1)), gains=np.ones((chunk, 2)),
+                     velocity=np.zeros((chunk, 2)), known=np.zeros(chunk, bool), curvature_radius=np.full(chunk, 0.03))
+    fits, times = {}, {}
+    for solver in ("gauss_newton", "optimistix"):
+        program = FitProgram(model="pair", solver=solver)
+        parts = []
+        t0 = time.perf_counter()
+        for start in range(0, n, chunk):
+            x, _ = _draw(clean, noise, start, min(start + chunk, n))
+            if len(x) < chunk:
+                x = np.concatenate([x, np.repeat(x[:1], chunk - len(x), axis=0)])
+            parts.append(program(x, meta))
+        times[solver] = {"total_s": time.perf_counter() - t0, **program.timings}
+        fits[solver] = {k: np.concatenate([np.asarray(getattr(p, k)) for p in parts])[:n]
+                        for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "status", "message")}
+    g, o = fits["gauss_newton"], fits["optimistix"]
+    both_ok = (g["status"] == "ok") & (o["status"] == "ok")
+    out = {"n": n, "times": times, "status_gauss_newton": dict(collections.Counter(g["status"])),
+           "status_optimistix": dict(collections.Counter(o["status"])),
+           "status_agree": int(np.sum(g["status"] == o["status"])), "both_ok": int(both_ok.sum())}
+    differ = g["status"] != o["status"]
+    weak = np.array(["too weak to measure a" in m for m in g["message"]]) & np.array(
+        ["too weak to measure a" in m for m in o["message"]])
+    out["status_differ_with_a_too_weak_in_both"] = int(np.sum(differ & weak))
+    for name in ("vx", "vy", "a"):
+        a, b, e = g[name], o[name], o[name + "_err"]
+        fin = np.isfinite(a) & np.isfinite(b) & np.isfinite(e) & (e > 0)
+        d = np.abs(a - b) / np.where(fin, e, 1.0)
+        out[f"{name}_max_diff_sigma_both_ok"] = float(np.max(d[fin & both_ok])) if np.any(fin & both_ok) else None
+        out[f"{name}_max_diff_sigma_all"] = float(np.max(d[fin])) if np.any(fin) else None
+        out[f"{name}_nan_mismatch"] = int(np.sum(np.isfinite(a) != np.isfinite(b)))
+    print(json.dumps(out, indent=1))
+    (Path(args.out) / "solvers_pair.json").write_text(json.dumps(out, indent=1))
+    return out
 
 
 def _machine() -> str:
@@ -199,6 +249,10 @@ def main():
     ap.add_argument("--pool", type=int, default=16)
     ap.add_argument("--chunk", type=int, default=256)
     ap.add_argument("--model", default="pair", choices=["pair", "joint"])
+    ap.add_argument("--solver", default="gauss_newton", choices=["gauss_newton", "optimistix", "jaxopt"],
+                    help="the pair fits' solver (batch_fit.SOLVERS)")
+    ap.add_argument("--compare-solvers", type=int, default=0, metavar="N",
+                    help="only compare gauss_newton with optimistix on the first N records, then exit")
     ap.add_argument("--scipy-max", type=int, default=1000, help="scipy loop on at most this many records")
     ap.add_argument("--floor-max", type=int, default=2000, help="numpy floor on at most this many records")
     ap.add_argument("--out", default="benchmarks/out")
@@ -206,6 +260,9 @@ def main():
     args = ap.parse_args()
     if args.one is not None:
         print(json.dumps(one_size(args.one, args)))
+        return
+    if args.compare_solvers:
+        compare_solvers(args.compare_solvers, args)
         return
     Path(args.out).mkdir(parents=True, exist_ok=True)
     results = []
@@ -222,7 +279,7 @@ def main():
 
     jax.config.update("jax_enable_x64", True)
     machine = _machine()
-    lines = [f"machine: {machine}", f"model: {args.model}, chunk {args.chunk}, pool {args.pool} scenes, 4 x {N_SAMPLES} "
+    lines = [f"machine: {machine}", f"model: {args.model}, solver {args.solver}, chunk {args.chunk}, pool {args.pool} scenes, 4 x {N_SAMPLES} "
              f"samples at {FS:g} Hz, SNR {SNR_DB:g} dB", "",
              "| recordings | batch rec/s | compile s | spectra s | fit s | scipy loop rec/s | speed-up | numpy Welch floor rec/s | peak RSS MB |",
              "|---|---|---|---|---|---|---|---|---|"]

@@ -224,17 +224,17 @@ def _plan(infos: list[_FileInfo], done: set, chunk_size: int):
 _PROGRAMS: dict = {}
 
 
-def _program(options: FitOptions, model: str):
+def _program(options: FitOptions, model: str, solver: str = "gauss_newton"):
     from .batch_fit import FitProgram
 
-    key = (options, model)
+    key = (options, model, solver)
     if key not in _PROGRAMS:
-        _PROGRAMS[key] = FitProgram(options=options, model=model)
+        _PROGRAMS[key] = FitProgram(options=options, model=model, solver=solver)
     return _PROGRAMS[key]
 
 
 def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOptions, model: str,
-               x64: bool = True, cache_dir: str | None = None) -> tuple[list[dict], dict]:
+               x64: bool = True, cache_dir: str | None = None, solver: str = "gauss_newton") -> tuple[list[dict], dict]:
     """Read, check and fit one chunk; return its rows (in segment order) and stage timings. Never raises."""
     import jax
 
@@ -290,11 +290,12 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                          gains=np.array([m[2] for m in allm], float), velocity=np.array([m[3] for m in allm], float),
                          known=np.array([m[4] for m in allm], bool),
                          curvature_radius=np.array([m[5] for m in allm], float))
-        program = _program(options, model)
+        program = _program(options, model, solver)
         before = dict(program.timings)
         try:
             fit = program(signals, meta)
-            fit_rows = chunk_rows(fit, meta, [g[1] for g in good], [g[2] for g in good], model=model, options=options)
+            fit_rows = chunk_rows(fit, meta, [g[1] for g in good], [g[2] for g in good], model=model, options=options,
+                                  solver=solver if model == "pair" else None)
             for (p, _, _), row in zip(good, fit_rows):
                 rows[p] = row
         except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume
@@ -359,7 +360,7 @@ class _Progress:
 
 def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 256, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, resume: bool = True,
-              model: str | None = None) -> BatchSummary:
+              model: str | None = None, solver: str = "gauss_newton") -> BatchSummary:
     """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
 
     inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
@@ -373,11 +374,15 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
     model: ``"pair"`` (exact R per probe pair, fast) or ``"joint"`` (2-D joint model); default
         ``DEFAULT_MODEL``.
+    solver: the pair fits' solver (``batch_fit.SOLVERS``): ``"gauss_newton"`` (fixed-iteration
+        Levenberg-Marquardt over the whole chunk, fast) or ``"optimistix"`` / ``"jaxopt"``
+        (``lsq.least_squares``, record by record on CPU; for comparison). The joint model's own
+        fits use ``options.solver``.
 
     Raises ``TactileInputError`` only for bad settings (``out`` suffix, chunk size, model); bad
     recordings become rows. ``n_failed`` counts rows whose status is not one of ``FIT_RAN``.
     """
-    from .batch_fit import MODELS
+    from .batch_fit import MODELS, SOLVERS
     from .results import RESULT_SUFFIXES, write_results
 
     t_start = time.perf_counter()
@@ -385,6 +390,8 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     model = DEFAULT_MODEL if model is None else model
     if model not in MODELS:
         raise TactileInputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}", code="bad_setting")
+    if solver not in SOLVERS:
+        raise TactileInputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}", code="bad_setting")
     if out.suffix.lower() not in RESULT_SUFFIXES:
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
@@ -434,9 +441,10 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     try:
         if workers is None and scheduler is None:
             for size, segs in chunks:
-                consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
+                consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir,
+                                    solver))
         else:
-            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
+            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir, solver)
     finally:
         bar.close()
     if not chunks:
@@ -456,7 +464,7 @@ def _hashable(options: FitOptions) -> FitOptions:
     return dataclasses.replace(options, gain_ratio=g, velocity=v)
 
 
-def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
+def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir, solver):
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -472,7 +480,7 @@ def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, c
             futures = {}
             for n, (size, segs) in enumerate(chunks):
                 part = [infos[fi] for fi, _, _ in segs]
-                fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, pure=False,
+                fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, solver, pure=False,
                                     key=f"tactile-chunk-{n}-{os.getpid()}-{time.time_ns()}")
                 futures[fut] = (part, segs)
             for fut in as_completed(futures):

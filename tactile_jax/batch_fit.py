@@ -8,22 +8,28 @@
    amplitude ratios, usable-band masks (``spectra.usable_band`` minus
    leakage-only bins), Eq. 6 starting values (``closed_form.slope_speed``) and
    Eq. 4 dominant wavenumbers, all as arrays;
-2. fitting stage (one program per (B, K), K a power of two: the most usable
-   bins of a pair in the chunk for the pair model, compacted; the window of
-   bins that holds every record's band for the joint model; a batch of
-   similar records compiles it once or twice): Levenberg-Marquardt
-   (``lsq.least_squares``, optimistix) of the exact-R pair model of
-   ``pair_fit`` (``model="pair"``, both pairs, vmapped) and, for
-   ``model="joint"``, the 2-D joint model of ``joint_model`` started from the
-   pair fits (texture-only stage, then all parameters; two speed starts, the
-   smaller chi-square kept), mapped in sub-batches to bound memory.
+2. fitting stage (one program per (B, K) and solver, K a power of two: the
+   window of bins that holds every fitted pair's band, or the most usable
+   bins of a pair compacted, whichever needs fewer R evaluations, for the
+   pair model; the window of bins that holds every record's band for the
+   joint model; a batch of similar records compiles it once or twice): the
+   exact-R pair model of ``pair_fit`` for both pairs of every record, by
+   default with ``gauss_newton`` (a fixed number of Levenberg-Marquardt
+   iterations over all B x 2 pairs at once; ``solver="optimistix"`` or
+   ``"jaxopt"``: ``lsq.least_squares`` record by record, for comparison) and,
+   for ``model="joint"``, the 2-D joint model of ``joint_model`` started from
+   the pair fits (texture-only stage, then all parameters; two speed starts,
+   the smaller chi-square kept; optimistix), mapped in sub-batches to bound
+   memory.
 
 Statuses are computed as arrays (``ok``, ``no_band``, ``not_converged``,
 ``poor_fit`` when the reduced chi-square exceeds 4, ``failed`` for non-finite
 values); errors are the Gauss-Newton ones scaled by max(redchi, 1) (they only
 inflate, as in ``fit``). Unlike ``fit.fit_recording`` the batch uses one
-Welch segment length for the whole chunk (no per-record refinement for slow
-slips) and reports no profile-likelihood bounds.
+Welch segment length for the whole chunk: the default for the recordings' N
+(not for the N - p samples prewhitening leaves), refined for slow slips by
+``fit``'s rule applied to the chunk's median record (``resolution_nperseg``; a
+second spectral pass only then), and reports no profile-likelihood bounds.
 """
 
 from __future__ import annotations
@@ -39,33 +45,42 @@ import numpy as np
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
 from .fit import FitOptions
-from .lsq import least_squares
+from .gauss_newton import N_ITERATIONS, gauss_newton
+from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
 from .r_curve import log_g, log_r_exact
 from jax.scipy.special import logsumexp
-from .spectra import amplitude_ratio, estimate_spectra, usable_band
+from .spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band
 
-__all__ = ["MODELS", "ChunkMeta", "ChunkFit", "fit_chunk", "chunk_rows", "FitProgram"]
+__all__ = ["MODELS", "SOLVERS", "ChunkMeta", "ChunkFit", "fit_chunk", "chunk_rows", "FitProgram"]
 
 #: models the batch can fit
 MODELS = ("pair", "joint")
+#: solvers of the pair fits: "gauss_newton" (fixed-iteration LM over the whole chunk, the default) or
+#: ``lsq.least_squares``'s ("optimistix", "jaxopt": one record after another on CPU)
+SOLVERS = ("gauss_newton",) + tuple(LSQ_SOLVERS)
 
 _MIN_PAIR_BINS = 5          # a pair needs this many usable bins to be fitted
 _MIN_BINS = 6               # the record needs this many in all (as ``fit``)
 _POOR_FIT_REDCHI = 4.0
 _A_CLIP = (2e-5, 0.05)      # m: starting contact radii
 _GRID_MARGIN = 6.0          # bins of model grid beyond the fitted bins (joint model)
+_MAX_SPAN = 64             # bins: a pair's window of fitted bins from its first usable one (the fitting stage's
+                           # cost grows with it; bins beyond, the weakest, add little to |v| and a)
 _JOINT_SUBBATCH = 8         # records per vmapped group inside the joint fit (memory bound)
 
 
-def default_group(model: str) -> int:
+def default_group(model: str, solver: str = "gauss_newton") -> int:
     """Records fitted side by side (vmapped) inside a chunk; the groups run one after another.
 
-    Under vmap every fit of a group takes as many LM steps as the slowest one. On CPU the step
-    overhead dominates and one record at a time is fastest (measured: 32 records in 0.9 s
-    one at a time vs 2.3 s in groups of 8 and 3.7 s all at once, 2-core x86-64); on an
-    accelerator the whole chunk side by side.
+    ``gauss_newton`` runs a fixed number of iterations: the whole chunk side by side (0). With
+    optimistix (a while_loop) every fit of a vmapped group takes as many LM steps as the slowest
+    one. On CPU the step overhead dominates and one record at a time is fastest (measured: 32
+    records in 0.9 s one at a time vs 2.3 s in groups of 8 and 3.7 s all at once, 2-core
+    x86-64); on an accelerator the whole chunk side by side.
     """
+    if model == "pair" and solver == "gauss_newton":
+        return 0
     if jax.default_backend() == "cpu":
         return 1
     return _JOINT_SUBBATCH if model == "joint" else 0
@@ -148,6 +163,43 @@ def _dominant(psd, log_ratio, band, log_gain, eps):
     return jnp.where(ok, (log_gain - log_ratio[i]) / eps, jnp.nan)
 
 
+def _main_band(band):
+    """The usable bins minus strays: the Nyquist bin, and every bin from the first one that lies
+    beyond 3 x (the previous usable bin) + 4 bins (a lone coherent noise bin far above the band,
+    frequent with long segments, would set the fit's window of bins and can capture the speed;
+    a grating's harmonics, at most 2 x apart, are kept). band: (..., M) bool."""
+    m = band.shape[-1]
+    idx = jnp.arange(m)
+    band = band & (idx < m - 1)
+    last = jax.lax.cummax(jnp.where(band, idx, -1), axis=band.ndim - 1)
+    prev = jnp.concatenate([jnp.full(band.shape[:-1] + (1,), -1, last.dtype), last[..., :-1]], axis=-1)
+    jump = band & (prev >= 0) & (idx > 3 * prev + 4)
+    return band & ~(jnp.cumsum(jump, axis=-1) > 0)
+
+
+#: the log ratio may change by at most this much across one bin (as ``fit._resolution_nperseg``)
+_MAX_LOG_STEP_PER_BIN = 0.15
+
+
+def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int) -> int:
+    """The chunk's Welch segment length: ``fit._resolution_nperseg``'s rule for each record, their median.
+
+    Each record wants bins narrow enough that its log ratio falls by at most 0.15 per bin at its
+    faster pair's Eq. 6 speed: nperseg >= 2 pi fs (d2 - d1) / (0.15 |v|), a power of two from
+    ``nperseg0`` (the default) up to N / 4 samples. One length per chunk (one compiled shape): the
+    median record's. speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m.
+    """
+    v = np.where(line_ok, speed0, np.nan)
+    have = np.isfinite(v).any(axis=-1)
+    if not have.any():
+        return nperseg0
+    v_fast = np.nanmax(v[have], axis=-1)
+    want = 2 * np.pi * fs[have] * (depths[have, 1] - depths[have, 0]) / (_MAX_LOG_STEP_PER_BIN * v_fast)
+    cap = max(1 << ((int(n_samples) // 4).bit_length() - 1), nperseg0)
+    want = np.clip(2.0 ** np.ceil(np.log2(np.maximum(want, 1.0))), nperseg0, cap)
+    return int(np.sort(want)[(want.size - 1) // 2])
+
+
 @partial(jax.jit, static_argnames=("options", "nperseg"))
 def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg):
     def one(x, f, d, g):
@@ -156,7 +208,7 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg)
         band = usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err, fmin=options.fmin,
                            fmax=options.fmax)
         shallow = spec.psd[0::2]
-        band = band & ~_leakage_only(shallow, 3, options.leakage_db)
+        band = _main_band(band & ~_leakage_only(shallow, 3, options.leakage_db))
         d1, d2 = d[0], d[1]
         line = slope_speed(ratio.omega, ratio.log_ratio, ratio.log_ratio_err, band, d1, d2)
         a_off = radius_from_offset(line.intercept - jnp.log(g), d1, d2)
@@ -170,14 +222,49 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg)
         i_hi = jnp.max(jnp.where(any_band, idx, 0))
         white = spec.whitening if spec.whitening is not None else jnp.zeros((2, 1), shallow.dtype).at[:, 0].set(1.0)
         return dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
-                    shallow=shallow, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white)
+                    shallow=shallow, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
+                    line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
 
     return jax.vmap(one)(signals, fs, depths, gains)
 
 
-def _bucket(n: int) -> int:
-    """A bin count rounded up to a power of two (at least 32): few shapes, few compilations."""
-    return max(32, 1 << (max(int(n), 1) - 1).bit_length())
+def _kept_kernel(kernel):
+    """The spectral kernel's (offsets in bins, weights) that matter to the pair model.
+
+    Offsets whose weight is below 1e-20 of the largest (the Hann kernel's +/-2 and +/-3 bins:
+    2e-33) change the model's logsumexp by < 1e-20: not evaluated (13 -> 9 per bin).
+    """
+    offsets, weights = (np.asarray(k, float) for k in kernel)
+    keep = weights > 1e-20 * weights.max()
+    return offsets[keep], weights[keep]
+
+
+def _pair_span(band, kernel, n_fit: int) -> int:
+    """The window of bins for the pair fits (``_pair_problems_grid``), or 0 for compacted bins.
+
+    band: (B, 2, M) host array. Windows from each fitted pair's first usable bin, as long as the
+    widest fitted band of the chunk (rounded up by ``_bucket``, at most ``_MAX_SPAN``), need 2 L + 4 h - 1 R values
+    against ``n_fit`` J for compacted bins; the cheaper layout wins (the same residuals either way,
+    except that a window drops the bins of a band wider than ``_MAX_SPAN``).
+    """
+    offsets, _ = _kept_kernel(kernel)
+    if not np.allclose(2 * offsets, np.rint(2 * offsets)):
+        return 0
+    counts = band.sum(axis=-1)
+    fitted = counts >= _MIN_PAIR_BINS
+    if not fitted.any():
+        return 0
+    m = band.shape[-1]
+    first = np.argmax(band, axis=-1)
+    last = m - 1 - np.argmax(band[..., ::-1], axis=-1)
+    span = min(_bucket(int(np.max(np.where(fitted, last - first + 1, 1))), 16), _MAX_SPAN, m)
+    grid = 2 * span + 4 * float(np.max(np.abs(offsets)))
+    return span if grid < n_fit * offsets.size else 0
+
+
+def _bucket(n: int, least: int = 32) -> int:
+    """A bin count rounded up to a power of two (at least ``least``): few shapes, few compilations."""
+    return max(least, 1 << (max(int(n), 1) - 1).bit_length())
 
 
 # --------------------------------------------------------------------------- stage 2: the fits
@@ -210,10 +297,11 @@ def _pair_residuals(theta, args):
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
 
-def _pair_fits(stage, d, g, vel, known, n_fit, options, offsets, log_w, bin_factor):
-    """Exact-R fits of both pairs of one record on their usable bins, compacted to ``n_fit`` bins each.
+def _pair_problems(stage, d, g, vel, known, n_fit, options, offsets, log_w):
+    """Both pairs' least-squares problems on their usable bins, compacted to ``n_fit`` bins each.
 
-    Returns an ``LsqResult`` with a leading pair axis: theta (2, 3) = log|v|, log a, log g.
+    Returns theta0 (2, 3) = log|v|, log a, log g; args, ``_pair_residuals``'s, with a leading pair
+    axis; free (2, 3) bool (nothing free for a pair with fewer than ``_MIN_PAIR_BINS`` bins).
     """
     omega = stage["omega"]
     d_omega = omega[1] - omega[0]
@@ -229,13 +317,122 @@ def _pair_fits(stage, d, g, vel, known, n_fit, options, offsets, log_w, bin_fact
                       jnp.full(2, options.fit_gain)], axis=-1)
     # a pair with too few bins is not fitted (nothing free): under vmap the slowest fit sets the pace
     free = free & (jnp.sum(band, axis=-1) >= _MIN_PAIR_BINS)[:, None]
+    two = jnp.ones(2)
+    args = (om, y, err, mask, d[0] * two, d[1] * two, jnp.broadcast_to(offsets * d_omega, (2,) + offsets.shape),
+            jnp.broadcast_to(log_w, (2,) + log_w.shape))
+    return theta0, args, free
 
-    def one(th0, o, yy, ee, mm, fr):
-        args = (o, yy, ee, mm, d[0], d[1], offsets * d_omega, log_w)
-        return least_squares(_pair_residuals, th0, args, fr, solver=options.solver, bin_factor=bin_factor,
+
+@dataclasses.dataclass(frozen=True)
+class _GridResiduals:
+    """``_pair_residuals`` for a window of L consecutive bins, R evaluated once per half bin.
+
+    shifts: (J,) static grid index of each kernel offset for the window's first bin; the kernel
+    offsets lie on half bins, so neighbouring bins share their R values: G = 2 L + 4 h - 1
+    evaluations (h: the kernel's half width in bins) instead of L J. Bin l's offset j is grid
+    entry 2 l + shifts[j], taken as static strided slices (an XLA gather here would evaluate R
+    again for every gathered entry: measured 7x slower on CPU).
+    args: omega_grid (G,) rad/s, |the half-bin grid| under the window and its kernel; y, err,
+    mask (L,); d1, d2 (m); log_w (J,) log kernel weights. Hashable: a static solver argument.
+    """
+
+    shifts: tuple
+
+    def __call__(self, theta, args):
+        omega_grid, y, err, mask, d1, d2, log_w = args
+        log_v, log_a, log_g = theta[0], theta[1], theta[2]
+        length = y.shape[-1]
+        log_r = log_r_exact(omega_grid / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
+        at_offsets = jnp.stack([log_r[q:q + 2 * length - 1:2] for q in self.shifts], axis=-1)    # (L, J)
+        model = logsumexp(at_offsets + log_w, axis=-1) + log_g
+        safe_err = jnp.where(mask, err, 1.0)
+        return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
+
+    def value_and_jac(self, theta, args):
+        """The residuals (L,) and their Jacobian (L, 3), R's two partials by forward mode per grid point.
+
+        (About 3x faster than ``jax.jacfwd`` of ``__call__``, which carries three tangents
+        through the kernel average; the test checks the two agree.)
+        """
+        omega_grid, y, err, mask, d1, d2, log_w = args
+        log_v, log_a, log_g = theta[0], theta[1], theta[2]
+        length = y.shape[-1]
+        ones = jnp.ones_like(omega_grid)
+
+        def curve(u, w):
+            return log_r_exact(omega_grid / jnp.exp(u), d1, d2, jnp.exp(w))
+
+        u, w = log_v * ones, log_a * ones
+        log_r, d_v = jax.jvp(lambda u_: curve(u_, w), (u,), (ones,))
+        _, d_a = jax.jvp(lambda w_: curve(u, w_), (w,), (ones,))
+
+        def at(q):
+            return jnp.stack([q[k:k + 2 * length - 1:2] for k in self.shifts], axis=-1)      # (L, J)
+
+        z = at(log_r) + log_w
+        lse = logsumexp(z, axis=-1)
+        p = jnp.exp(z - lse[:, None])                                       # the kernel's softmax weights
+        safe_err = jnp.where(mask, err, 1.0)
+        r = jnp.where(mask, (jnp.where(mask, y, 0.0) - lse - log_g) / safe_err, 0.0)
+        dm = jnp.stack([jnp.sum(p * at(d_v), axis=-1), jnp.sum(p * at(d_a), axis=-1), jnp.ones_like(lse)], axis=-1)
+        jac = jnp.where(mask[:, None], -dm / safe_err[:, None], 0.0)
+        return r, jac
+
+
+def _grid_shifts(offsets) -> tuple:
+    """``_GridResiduals.shifts`` for kernel offsets (bins, multiples of 1/2)."""
+    half = float(np.max(np.abs(offsets)))
+    return tuple(int(q) for q in np.rint(2 * (np.asarray(offsets) + half)))
+
+
+def _pair_problems_grid(stage, d, g, vel, known, span, options, offsets, log_w):
+    """``_pair_problems`` on each pair's window of ``span`` bins from its first usable bin (``_GridResiduals``).
+
+    offsets: (J,) kernel offsets in bins, multiples of 1/2 (numpy, static).
+    """
+    theta0, _, free = _pair_problems(stage, d, g, vel, known, 1, options, jnp.asarray(offsets), log_w)
+    omega = stage["omega"]
+    m = omega.shape[-1]
+    d_omega = omega[1] - omega[0]
+    band = stage["band"]
+    first = jnp.argmax(band, axis=-1)                                       # (2,): 0 where no band
+    idx = first[:, None] + jnp.arange(span)[None, :]
+    valid = idx < m
+    idx = jnp.minimum(idx, m - 1)
+    mask = jnp.take_along_axis(band, idx, axis=-1) & valid
+    y = jnp.take_along_axis(stage["log_ratio"], idx, axis=-1)
+    err = jnp.take_along_axis(stage["err"], idx, axis=-1)
+    half = float(np.max(np.abs(offsets)))
+    n_grid = 2 * (span - 1) + round(4 * half) + 1
+    pos = first[:, None] + (jnp.arange(n_grid)[None, :] * 0.5 - half)        # in bins
+    omega_grid = jnp.abs(pos * d_omega)
+    two = jnp.ones(2)
+    args = (omega_grid, y, err, mask, d[0] * two, d[1] * two, jnp.broadcast_to(log_w, (2,) + log_w.shape))
+    return theta0, args, free
+
+
+def _pair_fits(stage, d, g, vel, known, n_fit, options, offsets, log_w, bin_factor, solver, span=0):
+    """Exact-R fits of both pairs of one record with ``solver``: on windows of ``span`` bins
+    (``_pair_problems_grid``) when ``span`` > 0, else on ``n_fit`` compacted bins (``_pair_problems``).
+
+    offsets: (J,) kernel offsets in bins (numpy). Returns an ``LsqResult`` with a leading pair
+    axis: theta (2, 3) = log|v|, log a, log g.
+    """
+    if span:
+        theta0, args, free = _pair_problems_grid(stage, d, g, vel, known, span, options, offsets, log_w)
+        residuals = _GridResiduals(_grid_shifts(offsets))
+    else:
+        theta0, args, free = _pair_problems(stage, d, g, vel, known, n_fit, options, jnp.asarray(offsets), log_w)
+        residuals = _pair_residuals
+
+    def one(th0, a, fr):
+        if solver == "gauss_newton":
+            return gauss_newton(residuals, th0, a, fr, n_iter=N_ITERATIONS, bin_factor=bin_factor,
+                                value_and_jac=getattr(residuals, "value_and_jac", None))
+        return least_squares(residuals, th0, a, fr, solver=solver, bin_factor=bin_factor,
                              max_steps=PAIR_MAX_STEPS)
 
-    return jax.vmap(one)(theta0, om, y, err, mask, free)
+    return jax.vmap(one)(theta0, args, free)
 
 
 def _knot_start(log_k_obs, phi_obs, sel, log_knots):
@@ -250,7 +447,7 @@ def _knot_start(log_k_obs, phi_obs, sel, log_knots):
     return jnp.where(sw_near > 1e-6, near, far)
 
 
-def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, rel_grid, dof, bin_factor):
+def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, banded, rel_grid, dof, bin_factor):
     """The joint 2-D model of one record from the pair fits' starts; the best of two speed starts."""
     om, idx, valid = _window(stage, i0, length)
     d1, d2 = d[0], d[1]
@@ -305,7 +502,7 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, rel_g
     s11_weight = jnp.sqrt(dof / max(bin_factor, 1.0))
     data = jm.ModelData(om, log_s11, lr, lr_err, mask, mask, s11_weight, grid, kernel, log_knots,
                         jnp.stack([d1, d2]), theta0, prior_inv_sd, jnp.asarray(1.0 / options.smoothness),
-                        white_grid, white_bin)
+                        white_grid, white_bin, *banded)
     n_prior = jm.n_prior_residuals(n_par)
     # second start: the axis with more shallow power as the major one, the other at 0.15 of it
     power = jnp.sum(jnp.where(band, shallow, 0.0), axis=-1)
@@ -373,18 +570,20 @@ def _summarise_joint(fit, free, known, vel, n_band):
                 n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS)
 
 
-@partial(jax.jit, static_argnames=("options", "model", "length", "n_fit", "kernel", "dof", "bin_factor", "group"))
+@partial(jax.jit, static_argnames=("options", "model", "length", "n_fit", "kernel", "dof", "bin_factor", "group",
+                                   "solver", "span"))
 def _fit_stage(stage, depths, gains, velocity, known, *, options: FitOptions, model: str, length: int, n_fit: int,
-               kernel: tuple, dof: float, bin_factor: float, group: int):
+               kernel: tuple, dof: float, bin_factor: float, group: int, solver: str, span: int = 0):
     offsets, weights = (np.asarray(k, float) for k in kernel)
-    keep = weights > 0
-    offsets_j, log_w = jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep]))
+    offsets_k, weights_k = _kept_kernel(kernel)
+    log_w = jnp.asarray(np.log(weights_k))
     half = max(float(np.max(np.abs(offsets))), _GRID_MARGIN)
     rel_grid = np.arange(-half, (length - 1) + half + 0.25, 0.5)               # in bins, from the first bin
     kmat = np.zeros((length, rel_grid.size))
     for o, w in zip(offsets, weights):
         pos = np.rint((np.arange(length) + o + half) / 0.5).astype(int)
         kmat[np.arange(length), pos] += w
+    banded = tuple(jnp.asarray(v) for v in jm.banded_kernel(kmat))
     kmat = jnp.asarray(kmat)
     rel_grid = jnp.asarray(rel_grid)
 
@@ -392,10 +591,11 @@ def _fit_stage(stage, depths, gains, velocity, known, *, options: FitOptions, mo
         n_band = jnp.sum(st["band"], axis=-1)
         any_band = n_band.sum() > 0
         i0 = jnp.where(any_band, st["i_lo"], 1)
-        pair = _pair_fits(st, d, g, vel, kn, n_fit, options, offsets_j, log_w, bin_factor)
+        pair = _pair_fits(st, d, g, vel, kn, n_fit, options, offsets_k, log_w, bin_factor, solver, span)
         if model == "pair":
             return _summarise_pair(pair, n_band, kn, vel, options)
-        fit, free = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, rel_grid, dof, bin_factor)
+        fit, free = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
+                               bin_factor)
         return _summarise_joint(fit, free, kn, vel, n_band)
 
     xs = (stage, depths, gains, velocity, known)
@@ -411,24 +611,39 @@ class FitProgram:
 
     options: ``fit.FitOptions`` (spectral settings, band selection, gains, solver).
     model: ``"pair"`` or ``"joint"``. nperseg: Welch segment length (None: the default for N).
+    solver: the pair fits' solver, one of ``SOLVERS``: ``"gauss_newton"`` (default: a fixed
+    number of Levenberg-Marquardt iterations over the whole chunk, ``gauss_newton``) or
+    ``"optimistix"`` / ``"jaxopt"`` (``lsq.least_squares``, for comparison). The joint
+    model's own fits always use ``options.solver``.
     group: records vmapped side by side in the fitting stage (0: the whole chunk; None:
     ``default_group``).
-    ``timings`` accumulates seconds per stage.
+    layout: how the pair fits see their bins: ``"auto"`` (a window of consecutive bins with R
+    evaluated once per half bin, when that is cheaper) or ``"compact"`` (the usable bins
+    gathered, R evaluated at every bin's kernel offsets); the same residuals either way.
+    resolution: without ``nperseg``, refine the segment length per chunk for slow slips
+    (``resolution_nperseg``: a second spectral pass when the chunk's median record wants it).
+    ``timings`` accumulates seconds per stage; ``last_nperseg`` is the last chunk's segment length.
     """
 
     options: FitOptions = FitOptions()
     model: str = "pair"
     nperseg: int | None = None
     group: int | None = None
+    solver: str = "gauss_newton"
+    layout: str = "auto"
+    resolution: bool = True
     timings: dict = dataclasses.field(default_factory=lambda: {"spectra": 0.0, "fit": 0.0})
+    last_nperseg: int | None = None
 
     def __post_init__(self):
         if self.model not in MODELS:
             raise ValueError(f"unknown model {self.model!r}; expected one of {MODELS}")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.solver!r}; expected one of {SOLVERS}")
         if self.nperseg is None and self.options.nperseg:
             self.nperseg = int(self.options.nperseg)
         if self.group is None:
-            self.group = default_group(self.model)
+            self.group = default_group(self.model, self.solver)
 
     def __call__(self, signals, meta: ChunkMeta) -> ChunkFit:
         return fit_chunk(signals, meta, self)
@@ -452,7 +667,19 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     known = jnp.asarray(meta.known, bool)
     t0 = time.perf_counter()
     nperseg = program.nperseg
+    if program.resolution and nperseg is None and options.method == "welch":
+        # the default for the recording's N, not for the N - p samples that prewhitening leaves
+        # (8192 -> 1024, not 512: coarse bins bias the speed of slow slips, see benchmarks/README.md)
+        nperseg = default_nperseg(x.shape[-1])
     stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg)
+    if program.resolution and program.nperseg is None and options.method == "welch":
+        nperseg0 = nperseg
+        finer = resolution_nperseg(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
+                                   np.asarray(meta.depths), x.shape[-1], nperseg0)
+        if finer > nperseg0:
+            nperseg = finer
+            stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg)
+    program.last_nperseg = 2 * (stage["omega"].shape[-1] - 1)
     stage["fs"] = fs
     i_lo, i_hi, band = (np.asarray(stage[k]) for k in ("i_lo", "i_hi", "band"))
     t1 = time.perf_counter()
@@ -462,9 +689,12 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     length = _bucket(span) if program.model == "joint" else 0        # the joint model's window of bins
     n_fit = min(_bucket(int(band.sum(axis=-1).max())), band.shape[-1])  # the pair fits' bins per pair
     spec_meta = jax.eval_shape(lambda s, f: _spectra(s, f, options, nperseg), x[0], fs[0])
+    kernel = tuple(map(tuple, spec_meta.kernel))
+    pair_span = _pair_span(band, kernel, n_fit) if program.layout == "auto" else 0
     out = _fit_stage(stage, depths, gains, velocity, known, options=options, model=program.model,
-                     length=length, n_fit=n_fit, kernel=tuple(map(tuple, spec_meta.kernel)), dof=float(spec_meta.dof),
-                     bin_factor=float(spec_meta.bin_factor), group=int(program.group))
+                     length=length, n_fit=n_fit, kernel=kernel, dof=float(spec_meta.dof),
+                     bin_factor=float(spec_meta.bin_factor), group=int(program.group), solver=program.solver,
+                     span=pair_span)
     out = {k: np.asarray(v) for k, v in out.items()}
     program.timings["fit"] += time.perf_counter() - t1
     k0 = np.asarray(stage["k0"])
@@ -476,7 +706,7 @@ def _statuses(out: dict, k0, known, program: FitProgram) -> ChunkFit:
     status = np.full(b, "ok", dtype=object)
     message = np.full(b, "", dtype=object)
     model = program.model
-    solver = program.options.solver
+    solver = program.solver if model == "pair" else f"{program.options.solver}, pair starts {program.solver}"
     for i in range(b):
         notes = []
         if not out["enough"][i]:
@@ -519,8 +749,13 @@ def _statuses(out: dict, k0, known, program: FitProgram) -> ChunkFit:
                     converged=np.asarray(out["converged"], bool) & ~bad, status=status, message=message)
 
 
-def chunk_rows(fit: ChunkFit, meta: ChunkMeta, files, indices, *, model: str, options: FitOptions) -> list[dict]:
-    """Data-contract rows (``fit.RESULT_FIELDS`` plus fit statistics) for the records of a chunk."""
+def chunk_rows(fit: ChunkFit, meta: ChunkMeta, files, indices, *, model: str, options: FitOptions,
+               solver: str | None = None) -> list[dict]:
+    """Data-contract rows (``fit.RESULT_FIELDS`` plus fit statistics) for the records of a chunk.
+
+    solver: the name written to the rows (the program's pair solver for the pair model; default
+    ``options.solver``).
+    """
     from .fit import RESULT_FIELDS
 
     precision = "float64" if jax.config.jax_enable_x64 else "float32"
@@ -542,6 +777,6 @@ def chunk_rows(fit: ChunkFit, meta: ChunkMeta, files, indices, *, model: str, op
                    k0x=num(fit.k0[i, 0]), k0y=num(fit.k0[i, 1]), model=model, window=options.window,
                    converged=bool(fit.converged[i]), status=str(fit.status[i]), message=str(fit.message[i]))
         row.update(gain_ratio_y=num(fit.gy[i]), gain_ratio_y_err=num(fit.gy_err[i]), redchi=num(fit.redchi[i]),
-                   n_bins=int(fit.n_bins[i]), cond=num(fit.cond[i]), solver=options.solver, precision=precision)
+                   n_bins=int(fit.n_bins[i]), cond=num(fit.cond[i]), solver=solver or options.solver, precision=precision)
         rows.append(row)
     return rows

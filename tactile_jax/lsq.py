@@ -19,11 +19,14 @@ from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import optimistix as optx
 
-__all__ = ["LsqResult", "least_squares", "SOLVERS"]
+__all__ = ["LsqResult", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL"]
 
 SOLVERS = ("optimistix", "jaxopt")
+#: a solve stopped by ``max_steps`` still counts as converged below this Gauss-Newton decrement (chi2 units)
+DECREMENT_TOL = 1e-2
 
 
 class LsqResult(NamedTuple):
@@ -32,9 +35,13 @@ class LsqResult(NamedTuple):
     theta: (P,) best fit, fixed entries unchanged. cov: (P, P) covariance.
     chi2: sum of squared data residuals (priors excluded). n_data: data
     residuals with non-zero weight. dof: n_data - n_free. redchi: chi2 / dof.
-    n_steps: solver steps. converged: solver reported success and the result
-    is finite. cond: condition number of the free block's correlation
-    matrix (large: a combination of parameters the data cannot tell apart).
+    n_steps: solver steps. converged: the result is finite and the solver
+    reported success, or it stopped at ``max_steps`` on a point where a full
+    Gauss-Newton step would lower chi2 by less than ``DECREMENT_TOL`` (the
+    parameters are within about 0.1 sigma of the optimum: a slow tail of LM
+    steps, not a failure). cond: condition number of the free block's
+    correlation matrix (large: a combination of parameters the data cannot
+    tell apart). decrement: that predicted chi2 decrease, g^T (J^T J)^-1 g.
     """
 
     theta: jax.Array
@@ -46,10 +53,44 @@ class LsqResult(NamedTuple):
     n_steps: jax.Array
     converged: jax.Array
     cond: jax.Array
+    decrement: jax.Array | float = float("nan")
+
+
+def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: bool = True, n_prior: int = 0):
+    """Fit statistics at ``theta``: (cov, chi2, n_data, dof, redchi, cond, decrement), as in ``LsqResult``.
+
+    r_all: (K,) residuals, the last ``n_prior`` of them priors. jac_all: (K, P) their Jacobian
+    (fixed columns are zeroed here). free: (P,) bool.
+    """
+    jac_all = jac_all * free[None, :]
+    n_res = r_all.shape[0] - n_prior
+    r, jac = r_all[:n_res], jac_all[:n_res]
+    n_data = jnp.sum(jnp.any(jac != 0, axis=1) | (r != 0))
+    n_free = jnp.sum(free)
+    chi2 = jnp.sum(jnp.square(r))
+    dof = jnp.maximum(n_data - n_free, 1)
+    redchi = chi2 / dof
+    jtj = jac_all.T @ jac_all
+    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), 1e-300, None)), 1.0)
+    scaled = jtj / (d[:, None] * d[None, :])
+    scaled = jnp.where(free[:, None] & free[None, :], scaled, jnp.eye(theta.shape[0]))
+    evals = jnp.linalg.eigvalsh(scaled)
+    cond = evals[-1] / jnp.clip(evals[0], 1e-300, None)
+    inv = jnp.linalg.pinv(scaled, hermitian=True)
+    cov = inv / (d[:, None] * d[None, :])
+    factor = jnp.where(scale_covar, redchi, 1.0) * bin_factor
+    cov = jnp.where(free[:, None] & free[None, :], cov * factor, 0.0)
+    grad = jnp.where(free, (jac_all.T @ r_all) / d, 0.0)     # gradient of chi2 / 2, scaled variables
+    decrement = grad @ inv @ grad
+    return cov, chi2, n_data, dof, redchi, cond, decrement
 
 
 def _solve_optimistix(fn, y0, args, max_steps, rtol, atol):
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    # The damped step solved by Cholesky on the normal equations, not optimistix's default QR of the
+    # stacked [J; sqrt(lambda) I]: the same minimum (53 vs 60 steps), but 3.8x less time per step on the joint
+    # model (39 vs 151 ms on 2 CPU cores, 128 bins, 19 parameters); the damping keeps J^T J +
+    # lambda I positive definite, and the covariance below does not use this factorisation.
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
     sol = optx.least_squares(fn, solver, y0, args, max_steps=max_steps, throw=False, options={"jac": "fwd"})
     return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
@@ -92,22 +133,8 @@ def least_squares(residuals: Callable, theta0, args, free, *, solver: str = "opt
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     theta = full(y)
     r_all = residuals(theta, args)
-    jac_all = jax.jacfwd(residuals)(theta, args) * free[None, :]
-    n_res = r_all.shape[0] - n_prior
-    r, jac = r_all[:n_res], jac_all[:n_res]
-    n_data = jnp.sum(jnp.any(jac != 0, axis=1) | (r != 0))
-    n_free = jnp.sum(free)
-    chi2 = jnp.sum(jnp.square(r))
-    dof = jnp.maximum(n_data - n_free, 1)
-    redchi = chi2 / dof
-    jtj = jac_all.T @ jac_all
-    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), 1e-300, None)), 1.0)
-    scaled = jtj / (d[:, None] * d[None, :])
-    scaled = jnp.where(free[:, None] & free[None, :], scaled, jnp.eye(theta.shape[0]))
-    evals = jnp.linalg.eigvalsh(scaled)
-    cond = evals[-1] / jnp.clip(evals[0], 1e-300, None)
-    cov = jnp.linalg.pinv(scaled, hermitian=True) / (d[:, None] * d[None, :])
-    factor = jnp.where(scale_covar, redchi, 1.0) * bin_factor
-    cov = jnp.where(free[:, None] & free[None, :], cov * factor, 0.0)
-    ok = ok & jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
-    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_steps, ok, cond)
+    jac_all = jax.jacfwd(residuals)(theta, args)
+    cov, chi2, n_data, dof, redchi, cond, decrement = fit_statistics(
+        theta, r_all, jac_all, free, bin_factor=bin_factor, scale_covar=scale_covar, n_prior=n_prior)
+    ok = (ok | (decrement < DECREMENT_TOL)) & jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
+    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_steps, ok, cond, decrement)

@@ -147,3 +147,103 @@ def test_cli_batch_exit_zero_with_failures(dataset, tmp_path, cache_dir, local_r
     failed = sum(r["status"] not in ("ok", "not_converged", "poor_fit") for r in rows)
     assert f"{failed} failed" in result.output and failed == local_run[0].n_failed
     assert len(rows) == 8 and {"nonfinite", "missing_key", "bad_shape"} <= {r["status"] for r in rows}
+
+
+# --------------------------------------------------------------------------- the chunk solver (gauss_newton)
+
+
+@pytest.fixture(scope="module")
+def hard_chunk(dataset):
+    """The 3 simulated records, one of independent noise (no band), one whose deep probes repeat the
+    shallow ones (a flat ratio: the speed runs away), and the 3 again: a chunk of 8 records."""
+    from tactile_jax.io import read_recording
+
+    good = np.asarray(read_recording(dataset / "multi.npz").signals, float)
+    rng = np.random.default_rng(0)
+    common = good[0].copy()
+    for p in (0, 2):
+        common[p + 1] = common[p] * (1 + 1e-3 * rng.standard_normal(common.shape[-1]))
+    x = np.concatenate([good, rng.standard_normal((1, 4, good.shape[-1])), common[None], good])    # 8: local_run's chunk
+    b = len(x)
+    meta = batch_fit.ChunkMeta(fs=np.full(b, 1000.0), depths=np.tile(DEPTHS, (b, 1)), gains=np.ones((b, 2)),
+                               velocity=np.zeros((b, 2)), known=np.zeros(b, bool), curvature_radius=np.full(b, 0.03))
+    return x, meta
+
+
+def test_gauss_newton_agrees_with_minpack_and_flags_hard_records(hard_chunk):
+    """The chunk solver against MINPACK's Levenberg-Marquardt (scipy) on the chunk's pair problems: the
+    same fits relative to the error bars; no band and a running-away speed come out as statuses.
+
+    (The comparison with optimistix LM, the solver the batch used before, is in
+    ``benchmarks/throughput.py --compare-solvers``: optimistix compiles this residual in ~30 s.)
+    """
+    import jax.numpy as jnp
+    from scipy.optimize import least_squares as minpack
+
+    from tactile_jax.fit import FitOptions
+    from tactile_jax.gauss_newton import gauss_newton
+
+    x, meta = hard_chunk
+    fit = batch_fit.FitProgram(solver="gauss_newton")(x, meta)
+    assert list(fit.status[:3]) == ["ok"] * 3
+    assert fit.status[3] == "no_band"
+    assert fit.status[4] == "not_converged" and "did not converge (gauss_newton)" in fit.message[4]
+    # the chunk's pair problems, as the program builds them
+    options = FitOptions()
+    stage = batch_fit._spectral_stage(jnp.asarray(x), jnp.asarray(meta.fs), jnp.asarray(meta.depths),
+                                      jnp.asarray(meta.gains), options=options, nperseg=None)
+    spec = jax.eval_shape(lambda s: batch_fit._spectra(s, 1000.0, options, None), jnp.asarray(x[0]))
+    kernel = tuple(map(tuple, spec.kernel))
+    offsets, weights = batch_fit._kept_kernel(kernel)
+    span = batch_fit._pair_span(np.asarray(stage["band"]), kernel, 64)
+    assert span > 0                                             # the half-bin grid layout is the one used
+    theta0, args, free = jax.vmap(lambda st, d: batch_fit._pair_problems_grid(
+        st, d, jnp.ones(2), jnp.zeros(2), jnp.zeros(2, bool), span, options, offsets, jnp.log(jnp.asarray(weights))))(
+        stage, jnp.asarray(meta.depths))
+    flat = jax.tree_util.tree_map(lambda t: t.reshape((-1,) + t.shape[2:]), (theta0, args, free))
+    res = batch_fit._GridResiduals(batch_fit._grid_shifts(offsets))
+    # the hand-written Jacobian is forward-mode AD's
+    _, j_a = jax.vmap(res.value_and_jac)(flat[0], flat[1])
+    j_f = jax.vmap(jax.jacfwd(res))(flat[0], flat[1])
+    np.testing.assert_allclose(j_a, j_f, rtol=1e-9, atol=1e-9 * float(jnp.max(jnp.abs(j_f))))
+    gn = jax.vmap(lambda t, a, f: gauss_newton(res, t, a, f, value_and_jac=res.value_and_jac))(*flat)
+    fitted = np.flatnonzero(np.asarray(flat[2]).any(-1))
+    good = [i for i in fitted if i < 6]                         # pairs of the 3 simulated records
+    assert len(good) >= 3 and all(bool(gn.converged[i]) for i in good)
+    assert not bool(np.all(gn.converged[8:10]))                 # the running-away pairs
+    residual = jax.jit(res)
+    for i in good:
+        theta_i, args_i, _ = jax.tree_util.tree_map(lambda t, i=i: t[i], flat)
+        ref = minpack(lambda p, a=args_i: np.asarray(residual(jnp.asarray([p[0], p[1], 0.0]), a)),
+                      np.asarray(theta_i[:2]), method="lm", xtol=1e-12, ftol=1e-12)
+        sd = np.sqrt(np.diag(np.asarray(gn.cov[i])))[:2]
+        assert np.all(np.abs(np.asarray(gn.theta[i, :2]) - ref.x) < 1e-3 * sd), i
+
+
+def test_main_band_drops_stray_bins_keeps_harmonics():
+    m = 64
+    band = np.zeros((3, m), bool)
+    band[0, 1:12] = True
+    band[0, 50] = True                              # a lone coherent noise bin far above the band
+    band[1, [4, 5, 8, 9, 12, 13, 16]] = True        # a grating's lines: kept
+    band[2, 1:10] = True
+    band[2, m - 1] = True                           # the Nyquist bin
+    kept = np.asarray(batch_fit._main_band(jax.numpy.asarray(band)))
+    assert kept[0].sum() == 11 and not kept[0, 50]
+    assert np.array_equal(kept[1], band[1])
+    assert kept[2].sum() == 9 and not kept[2, m - 1]
+
+
+def test_resolution_nperseg_follows_the_slowest_majority():
+    fs, d = np.full(3, 1000.0), np.tile(DEPTHS, (3, 1))
+    ok = np.array([[True, False]] * 3)
+    rule = batch_fit.resolution_nperseg
+    # 0.66 mm x 2 pi x 1 kHz / 0.15 = 27.6 / v samples: 0.2 m/s -> 138 -> the default 1024
+    assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 8192, 1024) == 1024
+    assert rule(np.array([[0.02, 0.0]] * 3), ok, fs, d, 8192, 1024) == 2048        # 1383 -> 2048 (= N / 4 cap)
+    assert rule(np.array([[0.002, 0.0]] * 3), ok, fs, d, 8192, 1024) == 2048       # capped at N / 4
+    assert rule(np.array([[0.02, 0.0]] * 3), ok, fs, d, 65536, 1024) == 2048
+    assert rule(np.array([[0.005, 0.0]] * 3), ok, fs, d, 65536, 1024) == 8192       # 5530 -> 8192
+    mixed = np.array([[0.2, 0.0], [0.2, 0.0], [0.005, 0.0]])                        # the median record's
+    assert rule(mixed, ok, fs, d, 65536, 1024) == 1024
+    assert rule(mixed, np.zeros((3, 2), bool), fs, d, 65536, 1024) == 1024          # no speed: the default

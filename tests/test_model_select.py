@@ -89,3 +89,30 @@ def test_hertz_model_fits_the_slip_axis_pair_only():
     assert (res.model, res.window, res.status) == ("hertz", "hertz", "ok")
     assert res.vy is None and "vy not determined" in res.message
     assert res.vx == pytest.approx(0.047, rel=0.06) and res.a == pytest.approx(2.2e-3, rel=0.1)
+
+
+def test_window_needed_is_a_likelihood_ratio_test(small_contact):
+    """A loosely measured a is tested against a -> infinity; the slip refit decides, at 2.71 x the scale."""
+    from tactile_jax import joint_model as jm
+    from tactile_jax.lsq import LsqResult
+
+    res = fit_recording(small_contact, FitOptions(velocity=(0.047, 0.0)))
+    p = res.problem
+    n_prior = jm.n_prior_residuals(len(p.theta))
+    cov = np.asarray(p.cov) / p.scale * res.redchi             # back to lsq's scaling (redchi, no bin factor)
+    fit = LsqResult(np.asarray(p.theta), cov, res.chi2, res.n_bins, res.n_bins - 1, res.redchi, 0, True, 1.0)
+    # a measured to 1-2 %: not tested, no refit
+    assert ms.window_needed(fit, p.free, p.args, n_prior=n_prior) == (True, "")
+    # the same fit with a said to be loose: the slip refit is far worse (the 1.5 mm window is strong)
+    loose = fit._replace(cov=_set(cov, 0.04))
+    assert ms.window_needed(loose, p.free, p.args, n_prior=n_prior) == (True, "")
+    # and with a chi2 so high that the slip refit is no worse: the window is not needed
+    worse = loose._replace(chi2=1e9)
+    needed, note = ms.window_needed(worse, p.free, p.args, n_prior=n_prior)
+    assert not needed and "do not need the contact window" in note
+
+
+def _set(cov, value):
+    cov = np.array(cov)
+    cov[2, 2] = value
+    return cov

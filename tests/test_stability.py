@@ -95,9 +95,6 @@ def test_baseline_is_honest(base_fit):
 
 
 @slow
-@pytest.mark.xfail(strict=True, reason="fit._fit_cross_spectra: on this plain 4 s scene the full joint LM hits "
-                   "max_steps=256 on 2 of 3 starts at a stable chi2 (12.19), so status is not_converged "
-                   "(benchmarks/profile_stages.py: these capped solves are ~45 % of the fit time)")
 def test_plain_scene_converges(base_fit):
     assert base_fit.status == "ok", base_fit.message
 
@@ -115,9 +112,6 @@ def test_float32_input_with_dc_offsets(base_rec, base_fit):
 
 
 @slow
-@pytest.mark.xfail(strict=True, reason="fit: with fit_gain=True and the deep probes 40 % hot, the 95 % profile "
-                   "lower bound on a is 3.19 mm for a true 2 mm (and |vx| 4.44 +/- 0.39 cm/s for 3.0): the bound "
-                   "profiles a with the gain free but from the biased optimum")
 def test_unknown_gain_mismatch_fitted(base_rec):
     """Deep probes 40 % hot and not calibrated: fit_gain must widen a, not bias it silently."""
     x = np.asarray(base_rec.signals, float) * np.array([1.0, 1.4, 1.0, 1.4])[:, None]
@@ -165,9 +159,6 @@ def test_hard_scenes(name):
 
 
 @slow
-@pytest.mark.xfail(strict=True, reason="fit: a 50 mm contact (4 s, 3 cm/s along x, 40 dB) gives a = 4.28 +/- 1.5 mm "
-                   "with status ok (31 sigma from the truth) and |vy| 4.3 +/- 2.3 cm/s for 0: the window's "
-                   "curvature is below the noise, a should be withheld with a lower bound")
 def test_large_contact_is_a_bound_not_a_confident_radius():
     scene = SCENES["contact_50mm"]
     res = fit_recording(simulate(scene), FitOptions())
