@@ -52,7 +52,7 @@ from .r_curve import log_g, log_r_exact
 from jax.scipy.special import logsumexp
 from .spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band
 
-__all__ = ["MODELS", "SOLVERS", "ChunkMeta", "ChunkFit", "fit_chunk", "chunk_rows", "FitProgram"]
+__all__ = ["MODELS", "SOLVERS", "ChunkMeta", "ChunkFit", "fit_chunk", "chunk_rows", "FitProgram", "resolution_nperseg"]
 
 #: models the batch can fit
 MODELS = ("pair", "joint")
@@ -65,7 +65,8 @@ _MIN_BINS = 6               # the record needs this many in all (as ``fit``)
 _POOR_FIT_REDCHI = 4.0
 _A_CLIP = (2e-5, 0.05)      # m: starting contact radii
 _GRID_MARGIN = 6.0          # bins of model grid beyond the fitted bins (joint model)
-_MAX_SPAN = 64             # bins: a pair's window of fitted bins from its first usable one (the fitting stage's
+_V_MAX = 10.0              # m/s: a pair's fitted speed above this has run away (as ``fit._V_BOUNDS``)
+_MAX_SPAN = 48             # bins: a pair's window of fitted bins from its first usable one (the fitting stage's
                            # cost grows with it; bins beyond, the weakest, add little to |v| and a)
 _JOINT_SUBBATCH = 8         # records per vmapped group inside the joint fit (memory bound)
 
@@ -531,9 +532,14 @@ def _summarise_pair(pair, n_band, known, vel, options):
     sd = jnp.sqrt(jnp.clip(jnp.diagonal(pair.cov, axis1=-2, axis2=-1) * inflate[..., None], 0, None))   # (2, 3)
     th = jnp.exp(pair.theta)
     fitted = n_band >= _MIN_PAIR_BINS
-    speed = jnp.where(known, vel, jnp.where(fitted, th[:, 0], jnp.nan))
-    speed_err = jnp.where(known | ~fitted, jnp.nan, th[:, 0] * sd[:, 0])
-    a_rel = jnp.where(fitted & (th[:, 1] > 0), sd[:, 1], jnp.inf)
+    # a pair whose ratio is flat (no slip along it: the fitted speed runs away, unconverged, with an
+    # error bar beyond half its value or a speed above 10 m/s) determines nothing; it does not make
+    # the record not_converged when the other pair converged
+    runaway = fitted & ~known & ~pair.converged & ((sd[:, 0] > 0.5) | (th[:, 0] > _V_MAX) | ~jnp.isfinite(sd[:, 0]))
+    runaway = runaway & jnp.any(fitted & ~runaway)
+    speed = jnp.where(known, vel, jnp.where(fitted & ~runaway, th[:, 0], jnp.nan))
+    speed_err = jnp.where(known | ~fitted | runaway, jnp.nan, th[:, 0] * sd[:, 0])
+    a_rel = jnp.where(fitted & ~runaway & (th[:, 1] > 0), sd[:, 1], jnp.inf)
     best = jnp.argmin(a_rel)
     a = jnp.where(jnp.any(fitted), th[best, 1], jnp.nan)
     a_err = jnp.where(jnp.any(fitted), th[best, 1] * sd[best, 1], jnp.nan)
@@ -543,11 +549,12 @@ def _summarise_pair(pair, n_band, known, vel, options):
     gain_err = jnp.where(options.fit_gain & fitted, gain * sd[:, 2], jnp.nan)
     f = fitted.astype(redchi.dtype)
     n_f = jnp.maximum(jnp.sum(f), 1.0)
+    used = fitted & ~runaway
     return dict(speed=speed, speed_err=speed_err, a=a, a_err=a_err, a_weak=weak, gain=gain, gain_err=gain_err,
                 redchi=jnp.sum(f * redchi) / n_f, chi2=jnp.sum(f * pair.chi2),
-                cond=jnp.max(jnp.where(fitted, pair.cond, 0.0)),
-                converged=jnp.all(pair.converged | ~fitted) & jnp.any(fitted),
-                finite=jnp.all(jnp.isfinite(jnp.where(fitted[:, None], pair.theta, 0.0)))
+                cond=jnp.max(jnp.where(used, pair.cond, 0.0)), runaway=runaway,
+                converged=jnp.all(pair.converged | ~used) & jnp.any(used),
+                finite=jnp.all(jnp.isfinite(jnp.where(used[:, None], pair.theta, 0.0)))
                 & jnp.all(jnp.isfinite(jnp.where(fitted, pair.chi2, 0.0))),
                 n_bins=jnp.sum(jnp.where(fitted, pair.n_data, 0)), enough=jnp.any(fitted))
 
@@ -729,7 +736,9 @@ def _statuses(out: dict, k0, known, program: FitProgram) -> ChunkFit:
             notes.append("the contact window is too weak to measure a")
         if model == "pair" and not known[i]:
             for p, name in ((0, "vx"), (1, "vy")):
-                if not np.isfinite(out["speed"][i, p]):
+                if "runaway" in out and out["runaway"][i, p]:
+                    notes.append(f"{name} not determined: its pair's log ratio is flat (the fitted speed runs away)")
+                elif not np.isfinite(out["speed"][i, p]):
                     notes.append(f"{name} not determined: fewer than {_MIN_PAIR_BINS} usable bins in its pair")
         if out["cond"][i] > 1e10:
             notes.append(f"near-degenerate parameters (condition number {out['cond'][i]:.2g})")

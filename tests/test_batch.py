@@ -155,7 +155,8 @@ def test_cli_batch_exit_zero_with_failures(dataset, tmp_path, cache_dir, local_r
 @pytest.fixture(scope="module")
 def hard_chunk(dataset):
     """The 3 simulated records, one of independent noise (no band), one whose deep probes repeat the
-    shallow ones (a flat ratio: the speed runs away), and the 3 again: a chunk of 8 records."""
+    shallow ones (a flat ratio: the speed runs away), the first again with only its y pair flat, and
+    the other 2 again: a chunk of 8 records."""
     from tactile_jax.io import read_recording
 
     good = np.asarray(read_recording(dataset / "multi.npz").signals, float)
@@ -163,7 +164,10 @@ def hard_chunk(dataset):
     common = good[0].copy()
     for p in (0, 2):
         common[p + 1] = common[p] * (1 + 1e-3 * rng.standard_normal(common.shape[-1]))
-    x = np.concatenate([good, rng.standard_normal((1, 4, good.shape[-1])), common[None], good])    # 8: local_run's chunk
+    one_flat = good[0].copy()
+    one_flat[3] = common[3]
+    one_flat[2] = common[2]
+    x = np.concatenate([good, rng.standard_normal((1, 4, good.shape[-1])), common[None], one_flat[None], good[1:]])
     b = len(x)
     meta = batch_fit.ChunkMeta(fs=np.full(b, 1000.0), depths=np.tile(DEPTHS, (b, 1)), gains=np.ones((b, 2)),
                                velocity=np.zeros((b, 2)), known=np.zeros(b, bool), curvature_radius=np.full(b, 0.03))
@@ -188,6 +192,9 @@ def test_gauss_newton_agrees_with_minpack_and_flags_hard_records(hard_chunk):
     assert list(fit.status[:3]) == ["ok"] * 3
     assert fit.status[3] == "no_band"
     assert fit.status[4] == "not_converged" and "did not converge (gauss_newton)" in fit.message[4]
+    # one flat pair (no slip along y) runs away alone: vy not determined, the record still fitted
+    assert fit.status[5] == "ok" and np.isnan(fit.vy[5]) and "vy not determined: its pair's log ratio is flat" in fit.message[5]
+    assert fit.vx[5] == pytest.approx(fit.vx[0], rel=1e-6)
     # the chunk's pair problems, as the program builds them
     options = FitOptions()
     stage = batch_fit._spectral_stage(jnp.asarray(x), jnp.asarray(meta.fs), jnp.asarray(meta.depths),
