@@ -30,7 +30,7 @@ from tactile_jax.texture import RandomTexture
 #: the cases that run the full joint fit cost 10-90 s each on 2 cores (benchmarks/profile_stages.py):
 #: opt in with TACTILE_JAX_SLOW=1; the default run keeps the cheap cases (CI budget)
 slow = pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
-                          reason="joint-fit stability case: set TACTILE_JAX_SLOW=1 (~5 min on 2 cores)")
+                          reason="joint-fit stability case: set TACTILE_JAX_SLOW=1 (~2.5 min on 2 cores)")
 
 DURATION = 4.0
 N_SIGMA = 5.0
