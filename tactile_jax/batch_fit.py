@@ -44,7 +44,7 @@ import numpy as np
 
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import FitOptions
+from .fit import FitOptions, resolution_segment
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
@@ -178,26 +178,21 @@ def _main_band(band):
     return band & ~(jnp.cumsum(jump, axis=-1) > 0)
 
 
-#: the log ratio may change by at most this much across one bin (as ``fit._resolution_nperseg``)
-_MAX_LOG_STEP_PER_BIN = 0.15
-
 
 def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int) -> int:
-    """The chunk's Welch segment length: ``fit._resolution_nperseg``'s rule for each record, their median.
+    """The chunk's Welch segment length: ``fit.resolution_segment`` for each record, their median.
 
     Each record wants bins narrow enough that its log ratio falls by at most 0.15 per bin at its
-    faster pair's Eq. 6 speed: nperseg >= 2 pi fs (d2 - d1) / (0.15 |v|), a power of two from
-    ``nperseg0`` (the default) up to N / 4 samples. One length per chunk (one compiled shape): the
-    median record's. speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m.
+    faster pair's Eq. 6 speed (``fit.resolution_segment``), at least ``nperseg0`` (the default).
+    One length per chunk (one compiled shape): the median record's.
+    speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m.
     """
     v = np.where(line_ok, speed0, np.nan)
     have = np.isfinite(v).any(axis=-1)
     if not have.any():
         return nperseg0
     v_fast = np.nanmax(v[have], axis=-1)
-    want = 2 * np.pi * fs[have] * (depths[have, 1] - depths[have, 0]) / (_MAX_LOG_STEP_PER_BIN * v_fast)
-    cap = max(1 << ((int(n_samples) // 4).bit_length() - 1), nperseg0)
-    want = np.clip(2.0 ** np.ceil(np.log2(np.maximum(want, 1.0))), nperseg0, cap)
+    want = np.maximum(resolution_segment(v_fast, fs[have], depths[have], n_samples), nperseg0)
     return int(np.sort(want)[(want.size - 1) // 2])
 
 

@@ -265,10 +265,23 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions) -> in
     step = (depths[1] - depths[0]) * d_omega / max(speeds)
     if step <= _MAX_LOG_STEP_PER_BIN:
         return None
-    want = nperseg * step / _MAX_LOG_STEP_PER_BIN
-    cap = 1 << ((n_samples // 4).bit_length() - 1)
-    finer = min(1 << int(math.ceil(math.log2(want))), cap)
+    fs = d_omega * nperseg / (2 * math.pi)
+    finer = int(resolution_segment(max(speeds), fs, np.asarray(depths, float), n_samples))
     return finer if finer > nperseg else None
+
+
+def resolution_segment(speed, fs, depths, n_samples: int):
+    """Welch segment (samples) over whose bins the log ratio falls by at most 0.15 at ``speed``.
+
+    The ratio falls as exp(-(d2 - d1) omega / v) and a bin is 2 pi fs / nperseg
+    wide: nperseg >= 2 pi fs (d2 - d1) / (0.15 v), rounded up to a power of two,
+    at most N / 4. speed in m/s, fs in Hz, depths (..., 2) in m; numpy, elementwise.
+    """
+    depths = np.asarray(depths, float)
+    eps = depths[..., 1] - depths[..., 0]
+    want = 2 * np.pi * np.asarray(fs) * eps / (_MAX_LOG_STEP_PER_BIN * np.asarray(speed))
+    cap = 1 << ((int(n_samples) // 4).bit_length() - 1)
+    return np.minimum(2.0 ** np.ceil(np.log2(np.maximum(want, 1.0))), cap)
 
 
 def _options_from_file(options: FitOptions, rec) -> FitOptions:
