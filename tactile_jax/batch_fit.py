@@ -44,7 +44,7 @@ import numpy as np
 
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import FitOptions, resolution_segment
+from .fit import FitOptions, leakage_only, resolution_segment
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
@@ -142,16 +142,6 @@ def _spectra(x, fs, options: FitOptions, nperseg):
     return estimate_spectra(x, fs, method=options.method, prewhiten=options.prewhiten, **kw)
 
 
-def _leakage_only(p, half: int, drop_db: float):
-    """jnp ``fit.leakage_only``: bins ``drop_db`` below the highest within +/- ``half`` bins."""
-    m = p.shape[-1]
-    pad = jnp.pad(p, [(0, 0)] * (p.ndim - 1) + [(half, half)], mode="edge")
-    local = pad[..., 0:m]
-    for k in range(1, 2 * half + 1):
-        local = jnp.maximum(local, pad[..., k:k + m])
-    return p < local * 10.0 ** (-drop_db / 10.0)
-
-
 def _dominant(psd, log_ratio, band, log_gain, eps):
     """Vectorised ``fit._dominant`` (Eq. 4 / 17) for one pair: k0 in rad/m or NaN."""
     m = psd.shape[-1]
@@ -204,7 +194,7 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg)
         band = usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err, fmin=options.fmin,
                            fmax=options.fmax)
         shallow = spec.psd[0::2]
-        band = _main_band(band & ~_leakage_only(shallow, 3, options.leakage_db))
+        band = _main_band(band & ~leakage_only(shallow, 3, options.leakage_db))
         d1, d2 = d[0], d[1]
         line = slope_speed(ratio.omega, ratio.log_ratio, ratio.log_ratio_err, band, d1, d2)
         a_off = radius_from_offset(line.intercept - jnp.log(g), d1, d2)

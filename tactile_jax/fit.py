@@ -200,11 +200,14 @@ def leakage_only(psd, half_width: int = 3, drop_db: float = 20.0):
 
     Between the lines of a periodic texture the bins hold only the spectral
     window's leakage from the lines: coherent, but their ratio is the lines'.
+    jnp, so that the batch's compiled spectral stage uses it too.
     """
-    p = np.asarray(psd)
-    pad = np.pad(p, [(0, 0)] * (p.ndim - 1) + [(half_width, half_width)], mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(pad, 2 * half_width + 1, axis=-1)
-    local_max = windows.max(axis=-1)
+    p = jnp.asarray(psd)
+    m = p.shape[-1]
+    pad = jnp.pad(p, [(0, 0)] * (p.ndim - 1) + [(half_width, half_width)], mode="edge")
+    local_max = pad[..., 0:m]
+    for k in range(1, 2 * half_width + 1):
+        local_max = jnp.maximum(local_max, pad[..., k:k + m])
     return p < local_max * 10.0 ** (-drop_db / 10.0)
 
 
@@ -410,7 +413,7 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
                                   fmin=options.fmin, fmax=options.fmax))
     psd = np.asarray(spec.psd)
     shallow = psd[[0, 2]]
-    leak = leakage_only(shallow, drop_db=options.leakage_db)
+    leak = np.asarray(leakage_only(shallow, drop_db=options.leakage_db))
     n_leak = int((band & leak).sum())
     band = band & ~leak
     omega = np.asarray(spec.omega)
