@@ -44,7 +44,7 @@ import numpy as np
 
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import FitOptions, leakage_only, resolution_segment
+from .fit import FitOptions, dominant_line, leakage_only, resolution_segment
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
@@ -142,18 +142,6 @@ def _spectra(x, fs, options: FitOptions, nperseg):
     return estimate_spectra(x, fs, method=options.method, prewhiten=options.prewhiten, **kw)
 
 
-def _dominant(psd, log_ratio, band, log_gain, eps):
-    """Vectorised ``fit._dominant`` (Eq. 4 / 17) for one pair: k0 in rad/m or NaN."""
-    m = psd.shape[-1]
-    p = jnp.where(band, psd, 0.0)
-    i = jnp.argmax(p)
-    near = jnp.abs(jnp.arange(m) - i) <= 2
-    line = jnp.sum(jnp.where(near, p, 0.0)) >= 0.5 * jnp.sum(p)
-    lo, hi = psd[jnp.clip(i - 3, 0, m - 1)], psd[jnp.clip(i + 3, 0, m - 1)]
-    ok = line & (jnp.sum(band) >= 3) & (i >= 3) & (i + 3 < m) & (psd[i] > 10 * lo) & (psd[i] > 10 * hi)
-    return jnp.where(ok, (log_gain - log_ratio[i]) / eps, jnp.nan)
-
-
 def _main_band(band):
     """The usable bins minus strays: the Nyquist bin, and every bin from the first one that lies
     beyond 3 x (the previous usable bin) + 4 bins (a lone coherent noise bin far above the band,
@@ -200,7 +188,8 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg)
         a_off = radius_from_offset(line.intercept - jnp.log(g), d1, d2)
         speed0 = jnp.where(line.ok & jnp.isfinite(line.speed), line.speed, 0.01)
         a0 = jnp.clip(jnp.where(jnp.isfinite(a_off), a_off, 2e-3), *_A_CLIP)
-        k0 = jax.vmap(_dominant, in_axes=(0, 0, 0, 0, None))(shallow, ratio.log_ratio, band, jnp.log(g), d2 - d1)
+        k0 = jax.vmap(dominant_line, in_axes=(0, 0, 0, 0, None, None))(shallow, ratio.log_ratio, band, jnp.log(g),
+                                                                     d1, d2)
         m = ratio.omega.shape[-1]
         any_band = band.any(axis=0)
         idx = jnp.arange(m)

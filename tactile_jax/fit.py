@@ -561,8 +561,8 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
     res.data = data
     # dominant wavenumbers (Eq. 4 / 17) where a pair's shallow spectrum has a single dominant line
     for p, attr in ((0, "k0x"), (1, "k0y")):
-        k0 = _dominant(shallow[p], ratio_np[0][p], band[p], d1, d2, gains[p])
-        setattr(res, attr, k0)
+        k0 = float(dominant_line(shallow[p], ratio_np[0][p], band[p], np.log(gains[p]), d1, d2))
+        setattr(res, attr, k0 if np.isfinite(k0) else None)
     return res
 
 
@@ -584,19 +584,21 @@ def _model_note(res):
     model_select.annotate(res)
 
 
-def _dominant(psd, log_ratio, band, d1, d2, gain):
-    """Eq. 4 / 17 at the spectral peak when one line carries most of the band's power, else None."""
-    if band.sum() < 1:
-        return None
-    p = np.where(band, psd, 0.0)
-    i = int(np.argmax(p))
-    lo, hi = max(i - 2, 0), i + 3
-    # a line: most of the band's power within +/- 2 bins, and a peak (not the edge of a falling spectrum)
-    if p[lo:hi].sum() < 0.5 * p.sum() or band.sum() < 3 or i < 3 or i + 3 >= psd.size:
-        return None
-    if not (psd[i] > 10 * psd[i - 3] and psd[i] > 10 * psd[i + 3]):
-        return None
-    return float(dominant_wavenumber(1.0, np.exp(log_ratio[i]) / gain, d1, d2))
+def dominant_line(psd, log_ratio, band, log_gain, d1, d2):
+    """Eq. 4 / 17 at the spectral peak when one line carries most of the band's power: k0 (rad/m) or NaN.
+
+    A line: at least half the band's power within +/- 2 bins of the peak, at least 3
+    band bins, and a peak 10x above the bins 3 away (not the edge of a falling
+    spectrum). jnp on one pair's (M,) arrays; the batch vmaps it.
+    """
+    m = psd.shape[-1]
+    p = jnp.where(band, psd, 0.0)
+    i = jnp.argmax(p)
+    near = jnp.abs(jnp.arange(m) - i) <= 2
+    line = jnp.sum(jnp.where(near, p, 0.0)) >= 0.5 * jnp.sum(p)
+    lo, hi = psd[jnp.clip(i - 3, 0, m - 1)], psd[jnp.clip(i + 3, 0, m - 1)]
+    ok = line & (jnp.sum(band) >= 3) & (i >= 3) & (i + 3 < m) & (psd[i] > 10 * lo) & (psd[i] > 10 * hi)
+    return jnp.where(ok, dominant_wavenumber(1.0, jnp.exp(log_ratio[i] - log_gain), d1, d2), jnp.nan)
 
 
 def _contact_depth(res: FitResult, curvature_radius):
