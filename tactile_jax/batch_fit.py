@@ -157,20 +157,26 @@ def _main_band(band):
 
 
 
-def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int) -> int:
+def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None) -> int:
     """The chunk's Welch segment length: ``fit.resolution_segment`` for each record, their median.
 
-    Each record wants bins narrow enough that its log ratio falls by at most 0.15 per bin at its
-    faster pair's Eq. 6 speed (``fit.resolution_segment``), at least ``nperseg0`` (the default).
-    One length per chunk (one compiled shape): the median record's.
-    speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m.
+    Each record wants the segment that resolves its faster pair's band (``fit.resolution_segment``:
+    at most 0.15 of log ratio per bin at its Eq. 6 speed, and at least 24 usable bins given the
+    ``n_band`` it has at ``nperseg0``), and at least ``nperseg0`` (the default). One length per
+    chunk (one compiled shape): the median record's.
+    speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m, n_band: (B, 2) or None.
     """
     v = np.where(line_ok, speed0, np.nan)
     have = np.isfinite(v).any(axis=-1)
     if not have.any():
         return nperseg0
-    v_fast = np.nanmax(v[have], axis=-1)
-    want = np.maximum(resolution_segment(v_fast, fs[have], depths[have], n_samples), nperseg0)
+    fast = np.nanargmax(np.where(np.isfinite(v[have]), v[have], -np.inf), axis=-1)
+    v_fast = np.take_along_axis(v[have], fast[:, None], axis=-1)[:, 0]
+    count = None
+    if n_band is not None:
+        count = np.take_along_axis(np.asarray(n_band)[have], fast[:, None], axis=-1)[:, 0]
+    want = np.maximum(resolution_segment(v_fast, fs[have], depths[have], n_samples, n_band=count,
+                                         nperseg=nperseg0), nperseg0)
     return int(np.sort(want)[(want.size - 1) // 2])
 
 
@@ -656,7 +662,8 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     if program.resolution and program.nperseg is None and options.method == "welch":
         nperseg0 = nperseg
         finer = resolution_nperseg(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
-                                   np.asarray(meta.depths), x.shape[-1], nperseg0)
+                                   np.asarray(meta.depths), x.shape[-1], nperseg0,
+                                   n_band=np.asarray(stage["band"]).sum(axis=-1))
         if finer > nperseg0:
             nperseg = finer
             stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg)

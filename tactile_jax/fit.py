@@ -245,45 +245,58 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
 
 #: the log ratio may change by at most this much across one bin (resolution of slow slips)
 _MAX_LOG_STEP_PER_BIN = 0.15
+#: fewer usable bins than this in the faster pair's band: longer segments (more, narrower bins)
+_MIN_BAND_BINS = 24
+#: the longest segment leaves at least this many half-overlapping segments to average
+_MIN_SEGMENTS = 6
 
 
 def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions) -> int | None:
-    """A longer Welch segment when the log ratio falls too fast per bin (slow slips), else None.
+    """A longer Welch segment when the band is poorly resolved (slow slips), else None.
 
-    The ratio falls as exp(-(d2 - d1) omega / v): a bin of width d_omega spans
-    (d2 - d1) d_omega / v of log ratio; keep it below 0.15 (up to N / 4 samples).
+    ``resolution_segment`` at the faster pair's Eq. 6 speed and usable-bin count.
     """
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err))
-    speeds = []
+    speeds, counts = [], []
     for p in range(2):
         if band[p].sum() >= 3:
             f = slope_speed(ratio.omega, ratio.log_ratio[p], ratio.log_ratio_err[p], band[p], *depths)
             if bool(f.ok):
                 speeds.append(float(f.speed))
+                counts.append(int(band[p].sum()))
     if not speeds:
         return None
     nperseg = 2 * (np.asarray(spec.omega).size - 1)
-    d_omega = float(spec.omega[1] - spec.omega[0])
-    step = (depths[1] - depths[0]) * d_omega / max(speeds)
-    if step <= _MAX_LOG_STEP_PER_BIN:
-        return None
-    fs = d_omega * nperseg / (2 * math.pi)
-    finer = int(resolution_segment(max(speeds), fs, np.asarray(depths, float), n_samples))
+    fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
+    fast = int(np.argmax(speeds))
+    finer = int(resolution_segment(speeds[fast], fs, np.asarray(depths, float), n_samples,
+                                   n_band=counts[fast], nperseg=nperseg))
     return finer if finer > nperseg else None
 
 
-def resolution_segment(speed, fs, depths, n_samples: int):
-    """Welch segment (samples) over whose bins the log ratio falls by at most 0.15 at ``speed``.
+def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperseg=None):
+    """Welch segment (samples) that resolves the log ratio's band; numpy, elementwise.
 
-    The ratio falls as exp(-(d2 - d1) omega / v) and a bin is 2 pi fs / nperseg
-    wide: nperseg >= 2 pi fs (d2 - d1) / (0.15 v), rounded up to a power of two,
-    at most N / 4. speed in m/s, fs in Hz, depths (..., 2) in m; numpy, elementwise.
+    Two rules, the longer wins, rounded up to a power of two and capped so that at
+    least 6 half-overlapping segments remain (``2 N / 7``):
+
+    - the ratio falls as exp(-(d2 - d1) omega / v) and a bin is 2 pi fs / nperseg
+      wide: nperseg >= 2 pi fs (d2 - d1) / (0.15 v) keeps the fall below 0.15 per bin;
+    - with ``n_band`` usable bins at the current ``nperseg``, the band is stretched
+      to at least 24 bins (the band's width in Hz stays put as bins narrow). The
+      Eq. 6 speed overestimates |v| under a small contact (by 30-160 %), so the
+      first rule alone misses slow slips (benchmarks/README.md, "Welch segment").
+
+    speed in m/s, fs in Hz, depths (..., 2) in m.
     """
     depths = np.asarray(depths, float)
     eps = depths[..., 1] - depths[..., 0]
     want = 2 * np.pi * np.asarray(fs) * eps / (_MAX_LOG_STEP_PER_BIN * np.asarray(speed))
-    cap = 1 << ((int(n_samples) // 4).bit_length() - 1)
+    if n_band is not None and nperseg is not None:
+        stretch = _MIN_BAND_BINS / np.maximum(np.asarray(n_band, float), 1.0)
+        want = np.maximum(want, np.asarray(nperseg) * np.where(stretch > 1.0, stretch, 0.0))
+    cap = 1 << ((2 * int(n_samples) // (_MIN_SEGMENTS + 1)).bit_length() - 1)
     return np.minimum(2.0 ** np.ceil(np.log2(np.maximum(want, 1.0))), cap)
 
 

@@ -247,8 +247,13 @@ def test_resolution_nperseg_follows_the_slowest_majority():
     rule = batch_fit.resolution_nperseg
     # 0.66 mm x 2 pi x 1 kHz / 0.15 = 27.6 / v samples: 0.2 m/s -> 138 -> the default 1024
     assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 8192, 1024) == 1024
-    assert rule(np.array([[0.02, 0.0]] * 3), ok, fs, d, 8192, 1024) == 2048        # 1383 -> 2048 (= N / 4 cap)
-    assert rule(np.array([[0.002, 0.0]] * 3), ok, fs, d, 8192, 1024) == 2048       # capped at N / 4
+    assert rule(np.array([[0.02, 0.0]] * 3), ok, fs, d, 8192, 1024) == 2048        # 1383 -> 2048
+    assert rule(np.array([[0.002, 0.0]] * 3), ok, fs, d, 8192, 1024) == 2048       # capped: 6 segments left
+    assert rule(np.array([[0.002, 0.0]] * 3), ok, fs, d, 8000, 512) == 2048        # 2 N / 7 = 2285 -> 2048
+    # a fast slip whose band is narrow: 10 bins at 1024 -> 24 wanted -> 2458 -> capped at 2048
+    assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 8192, 1024, n_band=np.array([[10, 40]] * 3)) == 2048
+    assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 65536, 1024, n_band=np.array([[10, 40]] * 3)) == 4096
+    assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 65536, 1024, n_band=np.array([[30, 2]] * 3)) == 1024
     assert rule(np.array([[0.02, 0.0]] * 3), ok, fs, d, 65536, 1024) == 2048
     assert rule(np.array([[0.005, 0.0]] * 3), ok, fs, d, 65536, 1024) == 8192       # 5530 -> 8192
     mixed = np.array([[0.2, 0.0], [0.2, 0.0], [0.005, 0.0]])                        # the median record's

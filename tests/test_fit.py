@@ -72,3 +72,19 @@ def test_hertz_window_is_unsupported_status():
     spec = estimate_spectra(rec.signals, rec.fs)
     res = fit_cross_spectra(spec, rec.depths, FitOptions(window="hertz"))
     assert res.status == "unsupported" and not res.converged
+
+
+def test_resolution_segment_rules():
+    from tactile_jax.fit import resolution_segment
+
+    d = np.array([0.265e-3, 0.925e-3])
+    # 2 pi x 1 kHz x 0.66 mm / (0.15 v) = 27.6 / v samples
+    assert resolution_segment(0.2, 1000.0, d, 16000) == 256
+    assert resolution_segment(0.015, 1000.0, d, 16000) == 2048                       # 1843 -> 2048
+    # capped so that 6 half-overlapping segments remain: 2 N / 7
+    assert resolution_segment(0.001, 1000.0, d, 8000) == 2048
+    assert resolution_segment(0.001, 1000.0, d, 16000) == 4096
+    # a narrow band: 12 bins at 1024 -> 24 wanted -> 2048, whatever the speed says
+    assert resolution_segment(0.2, 1000.0, d, 16000, n_band=12, nperseg=1024) == 2048
+    assert resolution_segment(0.2, 1000.0, d, 16000, n_band=24, nperseg=1024) == 256
+    assert resolution_segment(0.2, 1000.0, d, 16000, n_band=0, nperseg=1024) == 4096  # capped
