@@ -1,7 +1,7 @@
 """Are the pair fit's error bars the scatter it really has? (issues #3 and #5)
 
 For a few fixed scenes (slip along x, 8 s at 1 kHz, prewhitened Welch at the
-segment ``fit_recording`` picks) this simulates R texture-and-noise
+segment a pair fit gets, ``fit.resolution_segment``) this simulates R texture-and-noise
 realisations and compares, for the exact-R pair fit (``pair_fit.fit_pair``):
 
 - the stated one-sigma error of |v| and a (Bendat-Piersol per-bin errors, the
@@ -30,7 +30,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tactile_jax.fit import FitOptions, _resolution_nperseg  # noqa: E402
+from tactile_jax.fit import MIN_PAIR_BAND_BINS, FitOptions, _resolution_nperseg  # noqa: E402
 from tactile_jax.pair_fit import _residuals, fit_pair  # noqa: E402
 from tactile_jax.plotting import provenance  # noqa: E402
 from tactile_jax.prewhiten import whiten_pairs  # noqa: E402
@@ -97,7 +97,8 @@ def run_scene(speed, a, snr, reps, seed0=900):
         x = np.asarray(rec.signals, float)
         if nperseg is None:              # the segment fit_recording picks for the first realisation
             spec = estimate_spectra(x, rec.fs, prewhiten=PREWHITEN)
-            nperseg = _resolution_nperseg(spec, (D1, D2), x.shape[-1], FitOptions()) or default_nperseg(x.shape[-1])
+            nperseg = (_resolution_nperseg(spec, (D1, D2), x.shape[-1], FitOptions(), min_band_bins=MIN_PAIR_BAND_BINS)
+                       or default_nperseg(x.shape[-1]))
         spec = estimate_spectra(x, rec.fs, prewhiten=PREWHITEN, nperseg=nperseg)
         ratio = amplitude_ratio(spec)
         band = np.asarray(usable_band(ratio))[0]

@@ -120,11 +120,12 @@ def pair_data(signals, fs, nperseg=None):
 
 
 def resolution_nperseg(signals, fs, depths):
-    """The Welch segment that fit_recording would use (longer for slow slips; fit._resolution_nperseg)."""
-    from tactile_jax.fit import _resolution_nperseg
+    """The Welch segment for a pair fit (``fit._resolution_nperseg`` with the pair fits' bin count)."""
+    from tactile_jax.fit import MIN_PAIR_BAND_BINS, _resolution_nperseg
 
     spec = estimate_spectra(signals, fs, method="welch", prewhiten=PREWHITEN)
-    return _resolution_nperseg(spec, depths, signals.shape[-1], FitOptions()) or default_nperseg(signals.shape[-1])
+    return (_resolution_nperseg(spec, depths, signals.shape[-1], FitOptions(), min_band_bins=MIN_PAIR_BAND_BINS)
+            or default_nperseg(signals.shape[-1]))
 
 
 def _timed(fn, *a, **kw):

@@ -663,7 +663,7 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
         nperseg0 = nperseg
         finer = resolution_nperseg(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
                                    np.asarray(meta.depths), x.shape[-1], nperseg0,
-                                   n_band=np.asarray(stage["band"]).sum(axis=-1))
+                                   n_band=np.asarray(stage["band"]).sum(axis=-1) if program.model == "pair" else None)
         if finer > nperseg0:
             nperseg = finer
             stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg)

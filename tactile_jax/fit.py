@@ -245,16 +245,19 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
 
 #: the log ratio may change by at most this much across one bin (resolution of slow slips)
 _MAX_LOG_STEP_PER_BIN = 0.15
-#: fewer usable bins than this in the faster pair's band: longer segments (more, narrower bins)
-_MIN_BAND_BINS = 24
+#: a pair fit (3-parameter curve on the band alone) wants at least this many usable bins in the
+#: faster pair's band: longer segments (more, narrower bins). benchmarks/README.md, "Speed vs error"
+MIN_PAIR_BAND_BINS = 24
 #: the longest segment leaves at least this many half-overlapping segments to average
 _MIN_SEGMENTS = 6
 
 
-def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions) -> int | None:
+def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, min_band_bins: int = 0) -> int | None:
     """A longer Welch segment when the band is poorly resolved (slow slips), else None.
 
-    ``resolution_segment`` at the faster pair's Eq. 6 speed and usable-bin count.
+    ``resolution_segment`` at the faster pair's Eq. 6 speed (and usable-bin count
+    when ``min_band_bins``: pair fits pass ``MIN_PAIR_BAND_BINS``; the joint fit
+    does not, as halving its averages cost it more than the bins gained).
     """
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err))
@@ -271,11 +274,13 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions) -> in
     fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
     fast = int(np.argmax(speeds))
     finer = int(resolution_segment(speeds[fast], fs, np.asarray(depths, float), n_samples,
-                                   n_band=counts[fast], nperseg=nperseg))
+                                   n_band=counts[fast] if min_band_bins else None, nperseg=nperseg,
+                                   min_band_bins=min_band_bins))
     return finer if finer > nperseg else None
 
 
-def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperseg=None):
+def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperseg=None,
+                       min_band_bins: int = MIN_PAIR_BAND_BINS):
     """Welch segment (samples) that resolves the log ratio's band; numpy, elementwise.
 
     Two rules, the longer wins, rounded up to a power of two and capped so that at
@@ -284,7 +289,7 @@ def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperse
     - the ratio falls as exp(-(d2 - d1) omega / v) and a bin is 2 pi fs / nperseg
       wide: nperseg >= 2 pi fs (d2 - d1) / (0.15 v) keeps the fall below 0.15 per bin;
     - with ``n_band`` usable bins at the current ``nperseg``, the band is stretched
-      to at least 24 bins (the band's width in Hz stays put as bins narrow). The
+      to at least ``min_band_bins`` (the band's width in Hz stays put as bins narrow). The
       Eq. 6 speed overestimates |v| under a small contact (by 30-160 %), so the
       first rule alone misses slow slips (benchmarks/README.md, "Welch segment").
 
@@ -294,7 +299,7 @@ def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperse
     eps = depths[..., 1] - depths[..., 0]
     want = 2 * np.pi * np.asarray(fs) * eps / (_MAX_LOG_STEP_PER_BIN * np.asarray(speed))
     if n_band is not None and nperseg is not None:
-        stretch = _MIN_BAND_BINS / np.maximum(np.asarray(n_band, float), 1.0)
+        stretch = min_band_bins / np.maximum(np.asarray(n_band, float), 1.0)
         want = np.maximum(want, np.asarray(nperseg) * np.where(stretch > 1.0, stretch, 0.0))
     cap = 1 << ((2 * int(n_samples) // (_MIN_SEGMENTS + 1)).bit_length() - 1)
     return np.minimum(2.0 ** np.ceil(np.log2(np.maximum(want, 1.0))), cap)
