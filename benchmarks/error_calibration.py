@@ -48,7 +48,9 @@ def segment_log_ratios(signals, nperseg: int):
     """Delete-one-segment log ratios of the x pair, ``(K, M)``, and the full one, ``(M,)``.
 
     Numpy Welch (periodic Hann, half overlap, mean removed) of the prewhitened
-    signals: a pair's ratio is unchanged by its whitening filter.
+    signals: a pair's ratio is unchanged by its whitening filter. Written here
+    because ``spectra`` averages the segments inside its compiled core and does
+    not return them; ``run_scene`` checks that the full ratio matches it.
     """
     white, _ = whiten_pairs(jnp.asarray(signals), PREWHITEN)
     x = np.asarray(white)[:2]
@@ -69,20 +71,16 @@ def jackknife_sd(fit, omega, log_ratio, err, mask, kernel, loo):
     """Linearised jackknife one-sigma errors of (|v|, a) for a converged pair fit."""
     offsets, weights = (np.asarray(k, float) for k in kernel)
     keep = weights > 0
-
-    def res(y):
-        return _residuals(jnp.log(jnp.array([fit.speed, fit.a, 1.0])),
-                          (jnp.asarray(omega), y, jnp.asarray(err), jnp.asarray(mask), D1, D2,
-                           jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep]))))
-
     theta = jnp.log(jnp.array([fit.speed, fit.a, 1.0]))
-    jac = np.asarray(jax.jacfwd(lambda t: _residuals(t, (jnp.asarray(omega), jnp.asarray(log_ratio),
-                                                        jnp.asarray(err), jnp.asarray(mask), D1, D2,
-                                                        jnp.asarray(offsets[keep]),
-                                                        jnp.asarray(np.log(weights[keep])))))(theta))[:, :2]
+
+    def res(th, y):
+        return _residuals(th, (jnp.asarray(omega), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask), D1, D2,
+                               jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep]))))
+
+    jac = np.asarray(jax.jacfwd(res)(theta, log_ratio))[:, :2]
     gain = np.linalg.solve(jac.T @ jac, jac.T)
-    r0 = np.asarray(res(jnp.asarray(log_ratio)))
-    d = np.array([-gain @ (np.asarray(res(jnp.asarray(np.where(mask, y, 0.0)))) - r0) for y in loo])
+    r0 = np.asarray(res(theta, log_ratio))
+    d = np.array([-gain @ (np.asarray(res(theta, np.where(mask, y, 0.0))) - r0) for y in loo])
     k = d.shape[0]
     cov = (k - 1) / k * (d - d.mean(axis=0)).T @ (d - d.mean(axis=0))
     return np.array([fit.speed, fit.a]) * np.sqrt(np.diag(cov))
@@ -109,7 +107,9 @@ def run_scene(speed, a, snr, reps, seed0=900):
         jk = jackknife_sd(fit, omega, lr, err, band, spec.kernel, loo)
         rows.append({"v": fit.speed, "v_err": fit.speed_err, "a": fit.a, "a_err": fit.a_err, "v_jk": jk[0],
                      "a_jk": jk[1], "n_bins": int(band.sum()), "converged": fit.converged, "k": loo.shape[0]})
-        ratios.append(lr), errs.append(err), masks.append(band)
+        ratios.append(lr)
+        errs.append(err)
+        masks.append(band)
     lr, err, mask = np.array(ratios), np.array(errs), np.array(masks)
     common = mask.all(axis=0)
     dev = lr[:, common] - lr[:, common].mean(axis=0)

@@ -170,7 +170,7 @@ def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: in
     have = np.isfinite(v).any(axis=-1)
     if not have.any():
         return nperseg0
-    fast = np.nanargmax(np.where(np.isfinite(v[have]), v[have], -np.inf), axis=-1)
+    fast = np.argmax(np.where(np.isfinite(v[have]), v[have], -np.inf), axis=-1)
     v_fast = np.take_along_axis(v[have], fast[:, None], axis=-1)[:, 0]
     count = None
     if n_band is not None:

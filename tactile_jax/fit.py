@@ -274,8 +274,7 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, mi
     fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
     fast = int(np.argmax(speeds))
     finer = int(resolution_segment(speeds[fast], fs, np.asarray(depths, float), n_samples,
-                                   n_band=counts[fast] if min_band_bins else None, nperseg=nperseg,
-                                   min_band_bins=min_band_bins))
+                                   n_band=counts[fast], nperseg=nperseg, min_band_bins=min_band_bins))
     return finer if finer > nperseg else None
 
 
@@ -289,9 +288,10 @@ def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperse
     - the ratio falls as exp(-(d2 - d1) omega / v) and a bin is 2 pi fs / nperseg
       wide: nperseg >= 2 pi fs (d2 - d1) / (0.15 v) keeps the fall below 0.15 per bin;
     - with ``n_band`` usable bins at the current ``nperseg``, the band is stretched
-      to at least ``min_band_bins`` (the band's width in Hz stays put as bins narrow). The
-      Eq. 6 speed overestimates |v| under a small contact (by 30-160 %), so the
-      first rule alone misses slow slips (benchmarks/README.md, "Welch segment").
+      to at least ``min_band_bins`` (the band's width in Hz stays put as bins narrow; 0:
+      no such rule). The Eq. 6 speed overestimates |v| under a small contact (by
+      30-165 %), so the first rule alone misses slow slips (benchmarks/README.md,
+      "Speed vs error").
 
     speed in m/s, fs in Hz, depths (..., 2) in m.
     """
