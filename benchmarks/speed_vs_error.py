@@ -19,7 +19,9 @@ the estimator alone unless said (spectra are timed once, apart); batched:
 one vmapped call over all recordings. Errors: bias and RMSE of |v| and a
 relative to the truth; efficiency = CRB / MSE pooled as 1 / mean(err^2 / CRB),
 with the pair CRB (crb.pair_crb) at the truth from each recording's per-bin
-errors. Writes speed_vs_error.json and speed_vs_error.png (Pareto: time vs RMSE).
+errors and the correlation between neighbouring bins its jackknife measures
+(eff_*_white in the JSON: against the white-noise bin_factor instead).
+Writes speed_vs_error.json and speed_vs_error.png (Pareto: time vs RMSE).
 
     python benchmarks/speed_vs_error.py --out benchmarks/out                 # ~10-15 min on 2 cores
     python benchmarks/speed_vs_error.py --seeds 1 --snr 30 --quick           # a smoke run
@@ -48,6 +50,7 @@ import peer_lmfit  # noqa: E402
 
 from tactile_jax.closed_form import radius_from_offset, slope_speed  # noqa: E402
 from tactile_jax.crb import joint_crb, pair_crb  # noqa: E402
+from tactile_jax.jackknife import bin_correlation  # noqa: E402
 from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
 from tactile_jax.lsq import least_squares  # noqa: E402
 from tactile_jax.pair_fit import _residuals as exact_residuals  # noqa: E402
@@ -329,12 +332,25 @@ def run(args):
                 v, a, ok, dt, _ = f32[i]["joint float32"]
                 r["est"]["joint 2-D float32"] = (v, a if a is not None else np.nan, ok, dt)
 
-    # Cramer-Rao bound at the truth (Gaussian model) per recording
-    for r in rows:
+    # Cramer-Rao bound at the truth (Gaussian model) per recording, with the correlation of the log
+    # ratio's errors between neighbouring bins measured by the recording's delete-one-segment jackknife
+    # (the white-noise bin_factor, 1.94, overstates it: benchmarks/README.md, "Error calibration")
+    for i, r in enumerate(rows):
         g = r["grid"]
         omega, _, err, mask = r["x"]
-        b = pair_crb(omega, err, mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"], bin_factor=r["bin_factor"])
+        loo = estimate_spectra(signals[i], fs, method="welch", prewhiten=PREWHITEN, nperseg=npersegs[i],
+                               leave_one_out=True)
+        rho = bin_correlation(np.asarray(amplitude_ratio(loo).log_ratio[:, 0]), mask, max_lag=2)
+        r["bin_corr"] = [float(x) for x in rho]
+        rho = np.nan_to_num(rho)
+        b = pair_crb(omega, err, mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"], bin_corr=rho)
         r["crb_v"], r["crb_a"] = float(b.speed_sd[0]), float(b.a_sd)
+        b = pair_crb(omega, err, mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"], bin_factor=r["bin_factor"])
+        r["crb_v_white"], r["crb_a_white"] = float(b.speed_sd[0]), float(b.a_sd)
+    rho = np.array([r["bin_corr"] for r in rows], float)
+    print("log-ratio error correlation between bins (jackknife), median [p10, p90]: "
+          + ", ".join(f"lag {j + 1}: {np.nanmedian(rho[:, j]):+.2f} [{np.nanpercentile(rho[:, j], 10):+.2f}, "
+                      f"{np.nanpercentile(rho[:, j], 90):+.2f}]" for j in range(rho.shape[1])), flush=True)
     timing = {"simulate_s": sim_s, "spectra_single_ms": 1e3 * float(np.median(spectra_s)),
               "spectra_batched_ms_per_rec": 1e3 * batch_spectra_s / len(rows),
               "peer_spectra_ms": 1e3 * float(np.median([r["peer_spectra_s"] for r in rows])),
@@ -420,6 +436,10 @@ def summarise(rows, timing, snr_groups):
                     za = np.where(ok, ((a - at) / ca) ** 2, np.nan)
                     row["eff_v"] = float(1 / np.mean(zv[np.isfinite(zv)])) if np.isfinite(zv).any() else np.nan
                     row["eff_a"] = float(1 / np.mean(za[np.isfinite(za)])) if np.isfinite(za).any() else np.nan
+                    for key, crb in (("eff_v_white", [r["crb_v_white"] for r in have]),
+                                     ("eff_a_white", [r["crb_a_white"] for r in have])):
+                        z = np.where(ok, (((v if "_v_" in key else a) - (vt if "_v_" in key else at)) / crb) ** 2, np.nan)
+                        row[key] = float(1 / np.mean(z[np.isfinite(z)])) if np.isfinite(z).any() else np.nan
                     row["crb_v_pct"] = 100 * float(np.median(cv / vt))
                     row["crb_a_pct"] = 100 * float(np.median(ca / at))
                     if m.startswith("joint") and all("crb_joint_v" in r for r in have):
@@ -548,6 +568,7 @@ def main(argv=None):
     for lab in ("10-20", ">=30"):
         print(f"\nSNR {lab} dB\n" + markdown_table(summary, lab))
     per_rec = [{**{k: v for k, v in r["grid"].items() if k != "scene"}, "crb_v": r["crb_v"], "crb_a": r["crb_a"],
+                "bin_corr": r["bin_corr"], "crb_v_white": r["crb_v_white"], "crb_a_white": r["crb_a_white"],
                 "crb_joint_v": r.get("crb_joint_v"), "crb_joint_a": r.get("crb_joint_a"), "nperseg": r["nperseg"],
                 "est": {m: [None if (isinstance(x, float) and not np.isfinite(x)) else x for x in e]
                         for m, e in r["est"].items()}, "status": r.get("status", {})} for r in rows]

@@ -6,7 +6,11 @@ J = dr / dtheta (``jax.jacfwd`` of the model at the truth), and any unbiased
 estimator has cov(theta) >= F^-1 (the free block; fixed parameters are known).
 Adjacent spectral bins are correlated: for a model that is smooth across bins
 the information of M correlated bins is that of M / ``bin_factor``
-independent ones (``CrossSpectra.bin_factor``), so F is divided by it.
+independent ones (``CrossSpectra.bin_factor``), so F is divided by it. The
+white-noise ``bin_factor`` (Hann: 1.94) overstates the correlation of the log
+ratio's errors, -0.2..+0.3 between neighbours (benchmarks/README.md, "Error
+calibration"): ``pair_crb`` also takes the correlations measured on the
+recording (``jackknife.bin_correlation``), F = J^T C^-1 J with C banded.
 Parameters are fitted in log space; sd(v) = v sd(log v) is exact for the
 bound (its Jacobian is v). Two models:
 
@@ -34,20 +38,23 @@ import numpy as np
 from . import joint_model as jm
 from .pair_fit import _residuals as _pair_residuals
 
-__all__ = ["fisher_information", "bound_covariance", "Bound", "pair_crb", "joint_crb"]
+__all__ = ["fisher_information", "bound_covariance", "banded_correlation", "Bound", "pair_crb", "joint_crb"]
 
 
 @partial(jax.jit, static_argnames=("residuals", "n_prior"))
-def fisher_information(residuals: Callable, theta, args, free, *, n_prior: int = 0, bin_factor=1.0):
-    """Fisher information J^T J / bin_factor of the data residuals at ``theta``: (P, P).
+def fisher_information(residuals: Callable, theta, args, free, *, n_prior: int = 0, bin_factor=1.0, corr=None):
+    """Fisher information J^T J / bin_factor (or J^T corr^-1 J) of the data residuals at ``theta``: (P, P).
 
     residuals: ``residuals(theta, args) -> (n,)`` weighted residuals (zero where
     masked), the last ``n_prior`` of them priors (left out). free: (P,) bool;
-    fixed parameters get zero rows and columns.
+    fixed parameters get zero rows and columns. corr: optional (n, n)
+    correlation matrix of the data residuals' noise.
     """
     theta = jnp.asarray(theta)
     jac = jax.jacfwd(residuals)(theta, args)
     jac = jac[: jac.shape[0] - n_prior] * jnp.asarray(free, bool)[None, :]
+    if corr is not None:
+        return jac.T @ jnp.linalg.solve(corr, jac)
     return jac.T @ jac / bin_factor
 
 
@@ -87,8 +94,25 @@ class Bound(NamedTuple):
     fisher: jax.Array
 
 
+def banded_correlation(rho, n: int) -> np.ndarray:
+    """(n, n) Toeplitz correlation matrix of bins with correlations ``rho`` (lags 1, 2, ...).
+
+    Made positive definite if the measured ``rho`` are not (eigenvalues floored at 0.05).
+    """
+    c = np.eye(n)
+    for lag, r in enumerate(np.asarray(rho, float), start=1):
+        if lag < n:
+            c += r * (np.eye(n, k=lag) + np.eye(n, k=-lag))
+    w, v = np.linalg.eigh(c)
+    if w[0] < 0.05:
+        c = (v * np.maximum(w, 0.05)) @ v.T
+        d = np.sqrt(np.diag(c))
+        c = c / np.outer(d, d)
+    return c
+
+
 def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fit_gain=False,
-             kernel=((0.0,), (1.0,)), bin_factor=1.0) -> Bound:
+             kernel=((0.0,), (1.0,)), bin_factor=1.0, bin_corr=None) -> Bound:
     """Cramer-Rao bound on |v| and a from one pair's log AMPLITUDE ratio (the exact R model).
 
     omega: (M,) rad/s. log_ratio_err: (M,) one-sigma noise of log|P2/P1| per
@@ -97,6 +121,8 @@ def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fi
     unless ``fit_gain``, which adds it as a nuisance). kernel: the spectra's
     spectral window ``(offsets in bins, weights)``, as in ``fit_pair``.
     bin_factor: correlation of adjacent bins (``CrossSpectra.bin_factor``).
+    bin_corr: instead, the correlations of the log ratio's errors at lags 1, 2, ...
+    bins (``jackknife.bin_correlation``): F = J^T C^-1 J over the used bins.
     """
     err = jnp.asarray(log_ratio_err)
     mask = jnp.asarray(mask, bool) & jnp.isfinite(err) & (err > 0)
@@ -107,7 +133,17 @@ def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fi
             jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
     theta = jnp.log(jnp.asarray([speed, a, gain_ratio], dtype=omega.dtype))
     free = jnp.array([True, True, bool(fit_gain)])
-    fisher = fisher_information(_pair_residuals, theta, args, free, bin_factor=bin_factor)
+    if bin_corr is None:
+        fisher = fisher_information(_pair_residuals, theta, args, free, bin_factor=bin_factor)
+    else:
+        # the used bins, in order, with their correlation; unused rows of J are zero
+        used = np.flatnonzero(np.asarray(mask))
+        c = banded_correlation(bin_corr, int(used[-1] - used[0] + 1) if used.size else 1)
+        corr = np.eye(omega.shape[0])
+        if used.size:
+            sl = slice(int(used[0]), int(used[-1]) + 1)
+            corr[sl, sl] = c
+        fisher = fisher_information(_pair_residuals, theta, args, free, corr=jnp.asarray(corr))
     cov = bound_covariance(fisher, free)
     sd = jnp.sqrt(jnp.diag(cov))
     return Bound(speed * sd[:1], a * sd[1], cov, fisher)

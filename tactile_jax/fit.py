@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import jackknife
 from . import joint_model as jm
 from . import model_select
 from .closed_form import dominant_wavenumber, slope_speed
@@ -114,7 +115,9 @@ class FitResult:
     Speeds in m/s, lengths in m. ``None`` means not determined (see ``message``).
     ``a_lower`` is a 95 % lower bound on the contact radius when the window is
     too weak to measure it; ``vx_upper``/``vy_upper`` 95 % upper bounds when a
-    component is consistent with zero.
+    component is consistent with zero. ``error_scale``: the variance scale of the
+    Laplace covariance behind every error bar, ``error_method`` how it was found,
+    ``jackknife`` its diagnostics (segments, per-parameter variance ratios).
     """
 
     vx: float | None = None
@@ -152,6 +155,9 @@ class FitResult:
     solver: str = "optimistix"
     precision: str = "float64"
     names: tuple = ()
+    error_scale: float | None = None
+    error_method: str = ""
+    jackknife: dict | None = dataclasses.field(default=None, repr=False)
     correlations: np.ndarray | None = None
     texture_x: TextureSection | None = None
     texture_y: TextureSection | None = None
@@ -167,7 +173,7 @@ class FitResult:
         """One flat row of the data contract (JSON/CSV ready: floats, bools, str, None)."""
         row = {name: _plain(getattr(self, name)) for name in RESULT_FIELDS}
         for extra in ("a_lower", "vx_upper", "vy_upper", "gain_ratio_y", "gain_ratio_y_err", "redchi", "n_bins",
-                      "cond", "aic", "bic", "solver", "precision", "model_margin"):
+                      "cond", "aic", "bic", "solver", "precision", "model_margin", "error_scale", "error_method"):
             row[extra] = _plain(getattr(self, extra))
         if self.posterior is not None:
             row.update(self.posterior_record())
@@ -235,10 +241,14 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
             finer = _resolution_nperseg(spec, one.depths, signals.shape[-1], options)
             if finer:
                 spec = estimate_spectra(signals, one.fs, method="welch", prewhiten=options.prewhiten, nperseg=finer)
+        # the same estimator with each segment (taper) left out in turn: the jackknife of the errors
+        nperseg = {"nperseg": 2 * (spec.omega.size - 1)} if options.method == "welch" else {}
+        loo = (estimate_spectra(signals, one.fs, method=options.method, prewhiten=options.prewhiten,
+                                leave_one_out=True, **{**kw, **nperseg}) if spec.n_segments >= _MIN_JACKKNIFE else None)
     except TactileInputError as err:
         raise err.with_source(src) from None
     options = _options_from_file(options, one)
-    res = fit_cross_spectra(spec, one.depths, options, curvature_radius=one.curvature_radius)
+    res = fit_cross_spectra(spec, one.depths, options, curvature_radius=one.curvature_radius, leave_one_out=loo)
     res.file, res.index, res.truth, res.precision = rec.source, record, dict(one.truth), precision
     return res
 
@@ -250,6 +260,8 @@ _MAX_LOG_STEP_PER_BIN = 0.15
 MIN_PAIR_BAND_BINS = 24
 #: the longest segment leaves at least this many half-overlapping segments to average
 _MIN_SEGMENTS = 6
+#: fewest segments (tapers) for jackknife error bars; below, the Laplace errors x bin_factor
+_MIN_JACKKNIFE = 5
 
 
 def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, min_band_bins: int = 0) -> int | None:
@@ -405,13 +417,18 @@ def _gains(options: FitOptions) -> tuple[float, float]:
 
 
 def fit_cross_spectra(spec: CrossSpectra, depths, options: FitOptions = FitOptions(), *,
-                      curvature_radius=None) -> FitResult:
-    """Fit the joint model to estimated spectra. Never raises for a fit that fails: see ``status``."""
+                      curvature_radius=None, leave_one_out: CrossSpectra | None = None) -> FitResult:
+    """Fit the joint model to estimated spectra. Never raises for a fit that fails: see ``status``.
+
+    leave_one_out: the same estimator's delete-one-segment spectra
+    (``estimate_spectra(..., leave_one_out=True)``): the error bars are then
+    scaled by their jackknife; without, by the spectra's ``bin_factor``.
+    """
     try:
         options = model_select.options_for(options)
         if options.model == "hertz":            # the joint model is Gaussian only: each pair alone
             return model_select.fit_hertz(spec, depths, options, curvature_radius)
-        return _fit_cross_spectra(spec, depths, options, curvature_radius)
+        return _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out)
     except TactileInputError:
         raise
     except Exception as err:  # a bug or a numerical corner must not sink a batch: report it as data
@@ -419,7 +436,7 @@ def fit_cross_spectra(spec: CrossSpectra, depths, options: FitOptions = FitOptio
                          message=f"the fit failed: {type(err).__name__}: {' '.join(str(err).split())}")
 
 
-def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
+def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=None) -> FitResult:
     d1, d2 = (float(v) for v in depths)
     res = FitResult(window=options.window, solver=options.solver)
     if options.window != "gaussian":
@@ -561,10 +578,11 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
         if fit is None or (np.isfinite(float(trial.chi2)) and float(trial.chi2) < float(fit.chi2)):
             fit = trial
     fit, free = _select_model(res, fit, free, data, options, n_prior, spec.bin_factor, noise0)
+    scale = _error_scale(res, fit, free, data, spec, leave_one_out, idx)
     window_weak = False
     if options.model is None:                   # the default model: is the window needed at all?
         needed, note = model_select.window_needed(fit, free, data, n_prior=n_prior, solver=options.solver,
-                                                  bin_factor=float(spec.bin_factor))
+                                                  scale=scale)
         window_weak = not needed
         if note:
             res.warnings.append(note)
@@ -573,8 +591,7 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
                     "log_ratio_err": np.where(valid, ratio_np[1][:, idx], np.nan), "mask": mask_h}
     if n_leak:
         res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")
-    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, bin_factor=float(spec.bin_factor),
-          window_weak=window_weak)
+    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, scale=scale, window_weak=window_weak)
     _model_note(res)
     res.data = data
     # dominant wavenumbers (Eq. 4 / 17) where a pair's shallow spectrum has a single dominant line
@@ -582,6 +599,42 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius) -> FitResult:
         k0 = float(dominant_line(shallow[p], ratio_np[0][p], band[p], np.log(gains[p]), d1, d2))
         setattr(res, attr, k0 if np.isfinite(k0) else None)
     return res
+
+
+def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
+    """The variance scale of the fit's unit covariance (J^T J)^-1; records how it was found in ``res``.
+
+    With delete-one spectra: the jackknife's variance over the Laplace one, pooled over
+    the free speeds and radius (``jackknife``), never below the reduced chi-square
+    (a misfit the segments share). On benchmarks/coverage.py's 100 scenes the pulls'
+    sd is 0.95-1.07 with it, 0.80-0.87 with the constant factor. Without (recorded spectra, or too few segments):
+    max(redchi, 1) x the spectra's ``bin_factor``, which counts adjacent bins as
+    correlated as white noise's (Hann: 1.94); the real correlation of the log
+    ratio's errors is -0.2..+0.3 and those errors are 1.0-2.1x too wide
+    (benchmarks/README.md, "Error calibration").
+    """
+    redchi = float(fit.redchi)
+    fallback = max(redchi, 1.0) * max(float(spec.bin_factor), 1.0)
+    res.error_scale, res.error_method = fallback, "laplace x max(redchi, 1) x bin_factor"
+    if leave_one_out is None:
+        return fallback
+    ratio = amplitude_ratio(leave_one_out)
+    fields = {"log_h": jnp.where(data.mask_h, ratio.log_ratio[..., idx], 0.0),
+              "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(leave_one_out.psd[:, 0::2][..., idx], 1e-300)), 0.0)}
+    shifts, unit = jackknife.linear_shifts(jm.residuals, fit.theta, data, fields, jnp.asarray(free))
+    k = leave_one_out.n_segments
+    cov = jackknife.covariance(shifts, overlap=k / leave_one_out.dof)
+    unit = np.asarray(unit)
+    phys = [i for i in range(3) if free[i] and unit[i, i] > 0]
+    ratios = {name: float(cov[i, i] / unit[i, i]) for i, name in zip(range(3), ("vx", "vy", "a")) if i in phys}
+    pooled = jackknife.pooled_scale(cov, unit, phys)
+    res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios, "pooled": pooled,
+                     "redchi": redchi, "fallback": fallback}
+    if not np.isfinite(pooled) or pooled <= 0:
+        return fallback
+    scale = max(pooled, redchi)
+    res.error_scale, res.error_method = scale, f"laplace x jackknife ({k} segments)"
+    return scale
 
 
 def _select_model(res, fit, free, data, options, n_prior, bin_factor, noise0):
@@ -629,16 +682,11 @@ def _contact_depth(res: FitResult, curvature_radius):
         res.warnings.append(f"curvature_radius not given: contact depth assumes R = {1e3 * r:g} mm")
 
 
-def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius, *, bin_factor=1.0,
+def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius, *, scale,
           window_weak=False):
     theta = np.asarray(fit.theta)
-    # lsq scales the covariance by redchi; we only let it inflate: a redchi below 1 here comes from
-    # per-bin errors that overestimate the noise (coherence lost to resolution, not to noise), and
-    # shrinking every error bar by it under-covers (benchmarks/coverage.py). Adjacent bins of the
-    # spectra are correlated: the residuals count each bin as independent, so the information is
-    # bin_factor times too high (Hann Welch: 1.94) and the covariance is multiplied by it.
+    # lsq scaled the covariance by redchi; ``scale`` (``_error_scale``) replaces that factor
     redchi = float(fit.redchi)
-    scale = max(redchi, 1.0) * max(bin_factor, 1.0)
     cov = np.asarray(fit.cov) * (scale / redchi if redchi > 0 else 1.0)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     res.converged = bool(fit.converged)

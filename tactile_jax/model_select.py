@@ -184,12 +184,13 @@ def select(fit: LsqResult, free, data, options, *, n_prior: int, bin_factor: flo
 
 
 def window_needed(fit: LsqResult, free, data, *, n_prior: int, solver: str = "optimistix",
-                  bin_factor: float = 1.0) -> tuple[bool, str]:
+                  scale: float | None = None) -> tuple[bool, str]:
     """Does the data reject the slip model (a -> infinity)? Tested when a is loosely measured.
 
     A likelihood-ratio test: when holding a at ``A_NEGLIGIBLE`` (speeds, gains and
-    texture refitted) raises chi2 by less than 2.71 x the covariance scale
-    (max(redchi, 1) x bin_factor), the data cannot tell the window from none at
+    texture refitted) raises chi2 by less than 2.71 x ``scale``, the variance scale
+    of the fit's unit covariance (J^T J)^-1 (``fit._error_scale``; None:
+    max(redchi, 1)), the data cannot tell the window from none at
     95 %, and a fitted radius would be a number fitted into noise (a 50 mm
     contact came out as 4.3 +/- 1.5 mm). Returns (needed, note). The caller
     keeps the window fit for the speeds (its errors include a's uncertainty;
@@ -200,7 +201,7 @@ def window_needed(fit: LsqResult, free, data, *, n_prior: int, solver: str = "op
     if not free[_I_A]:
         return True, ""
     redchi = float(fit.redchi)
-    scale = max(redchi, 1.0) * max(float(bin_factor), 1.0)
+    scale = max(redchi, 1.0) if scale is None else float(scale)
     rel = float(np.sqrt(max(float(fit.cov[_I_A, _I_A]), 0.0) * scale / redchi)) if redchi > 0 else np.inf
     if rel < WINDOW_TEST_REL_ERR:
         return True, ""

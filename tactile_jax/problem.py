@@ -23,8 +23,9 @@ class FitProblem(NamedTuple):
     lower, upper: (P,) bounds of the internal parameters (a flat prior on
         the free ones inside them).
     cov: (P, P) Laplace (Gauss-Newton) covariance of ``theta``.
-    scale: likelihood temperature (the reduced chi-square used to scale the
-        covariance, so that sampler and Laplace widths agree).
+    scale: likelihood temperature (the variance scale of the covariance,
+        ``FitResult.error_scale``: jackknife or reduced chi-square x bin
+        factor), so that sampler and Laplace widths agree.
     to_physical: function ``(theta (..., P)) -> dict[name, array (...)]`` of
         the reported physical quantities (m/s, m, ...); vectorised over
         leading axes with numpy.

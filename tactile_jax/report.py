@@ -258,6 +258,8 @@ def fit_report(result, *, truth: dict | None = None) -> str:
              ("chi-square", _num(result.chi2, 6)), ("reduced chi-square", _num(result.redchi, 5)),
              ("Akaike info crit", _num(result.aic, 6)), ("Bayesian info crit", _num(result.bic, 6)),
              ("condition number", _num(result.cond, 3)))
+    if getattr(result, "error_method", ""):
+        stats += (("error scale", f"{_num(result.error_scale, 3)}  ({result.error_method})"),)
     lines += [f"    {k:<19}= {v}" for k, v in stats]
 
     lines.append("[[Variables]]")

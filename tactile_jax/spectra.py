@@ -186,6 +186,12 @@ def _check_int(name: str, value, *, minimum: int) -> int:
     return int(value)
 
 
+def _check_leave_one_out(leave_one_out, n_segments: int) -> None:
+    if leave_one_out and n_segments < 2:
+        raise TactileInputError(f"leave_one_out needs at least 2 segments or tapers; got {n_segments}",
+                                code="bad_setting")
+
+
 def _is_concrete_number(value) -> bool:
     try:
         float(value)
@@ -326,13 +332,24 @@ def _pair_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
     return power, cross
 
 
+def _leave_one_out_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
+    """Delete-one averages of ``_pair_spectra``: a new leading axis of K, averaging all segments but k."""
+    k = spec.shape[-2]
+
+    def drop_one(x):
+        return jnp.moveaxis((jnp.sum(x, axis=-2, keepdims=True) - x) / (k - 1), -2, 0) * scale
+
+    cross = jnp.conj(spec[..., 0::2, :, :]) * spec[..., 1::2, :, :]
+    return drop_one(jnp.square(spec.real) + jnp.square(spec.imag)), drop_one(cross)
+
+
 def _freq_axis(fs: Array, nfft: int, dtype) -> tuple[Array, Array]:
     freq = jnp.arange(nfft // 2 + 1, dtype=dtype) * (fs / nfft)
     return freq, (2.0 * np.pi) * freq
 
 
-@functools.partial(jax.jit, static_argnames=("nperseg", "step", "n_segments", "detrend"))
-def _welch_core(x, fs, window, *, nperseg: int, step: int, n_segments: int, detrend: str):
+@functools.partial(jax.jit, static_argnames=("nperseg", "step", "n_segments", "detrend", "leave_one_out"))
+def _welch_core(x, fs, window, *, nperseg: int, step: int, n_segments: int, detrend: str, leave_one_out=False):
     dtype = x.dtype
     fs = jnp.asarray(fs, dtype)
     window = jnp.asarray(window, dtype)
@@ -348,13 +365,13 @@ def _welch_core(x, fs, window, *, nperseg: int, step: int, n_segments: int, detr
     seg = _detrend(seg, detrend)
     spec = jnp.fft.rfft(seg * window, axis=-1)  # (..., 4, K, M)
     scale = jnp.asarray(_onesided_factor(nperseg), dtype) / (fs * jnp.sum(jnp.square(window)))
-    psd, csd = _pair_spectra(spec, scale)
+    psd, csd = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
     freq, omega = _freq_axis(fs, nperseg, dtype)
     return freq, omega, psd, csd
 
 
-@functools.partial(jax.jit, static_argnames=("nfft",))
-def _multitaper_core(x, fs, tapers, *, nfft: int):
+@functools.partial(jax.jit, static_argnames=("nfft", "leave_one_out"))
+def _multitaper_core(x, fs, tapers, *, nfft: int, leave_one_out=False):
     dtype = x.dtype
     fs = jnp.asarray(fs, dtype)
     tapers = jnp.asarray(tapers, dtype)  # (K, N), unit energy
@@ -363,7 +380,7 @@ def _multitaper_core(x, fs, tapers, *, nfft: int):
     energy = jnp.sum(jnp.square(tapers), axis=-1)[:, None]  # (K, 1)
     spec = spec / jnp.sqrt(energy).astype(spec.dtype)
     scale = jnp.asarray(_onesided_factor(nfft), dtype) / fs
-    psd, csd = _pair_spectra(spec, scale)
+    psd, csd = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
     freq, omega = _freq_axis(fs, nfft, dtype)
     return freq, omega, psd, csd
 
@@ -372,7 +389,8 @@ def _multitaper_core(x, fs, tapers, *, nfft: int):
 # estimators
 
 
-def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", detrend="constant") -> CrossSpectra:
+def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", detrend="constant",
+                  leave_one_out: bool = False) -> CrossSpectra:
     """Welch (averaged modified periodogram) auto- and cross-spectra.
 
     Matches ``scipy.signal.welch`` / ``scipy.signal.csd`` with the same
@@ -393,6 +411,9 @@ def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", de
             form as in scipy) or a 1-D array of ``nperseg`` weights.
         detrend: ``"constant"`` (remove each segment's mean), ``"linear"``
             or ``False`` / ``None`` / ``"none"``.
+        leave_one_out: return the K delete-one-segment estimates instead
+            (``psd``, ``csd`` with a leading axis of K, segment k left out of
+            the k-th), for a jackknife of anything computed from the spectra.
 
     Returns:
         :class:`CrossSpectra` with ``M = nperseg // 2 + 1`` bins, PSDs in
@@ -433,14 +454,15 @@ def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", de
         )
     step = nperseg - noverlap
     n_segments = (n_samples - nperseg) // step + 1
+    _check_leave_one_out(leave_one_out, n_segments)
     freq, omega, psd, csd = _welch_core(
-        x, fs, w, nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend
+        x, fs, w, nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend, leave_one_out=bool(leave_one_out)
     )
     return CrossSpectra(freq, omega, psd, csd, n_segments, _welch_dof(w, step, n_segments), "welch",
                         _bin_factor(w[None, :], nperseg), _spectral_kernel(w[None, :], nperseg, 3.0))
 
 
-def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None) -> CrossSpectra:
+def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None, leave_one_out: bool = False) -> CrossSpectra:
     """Multitaper (Thomson) auto- and cross-spectra with DPSS tapers.
 
     The record's mean is removed, each channel is multiplied by the
@@ -461,6 +483,8 @@ def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None) -> Cros
             swamps the deep probe's weak bins when the spectrum spans decades.
         nfft: FFT length in samples (static int, ``>= N``; zero-padded),
             default ``N``; the bins are ``k fs / nfft`` Hz.
+        leave_one_out: return the delete-one-taper estimates (a leading axis
+            of ``n_tapers``), the jackknife of Thomson and Chave (1991).
 
     Returns:
         :class:`CrossSpectra` with ``M = nfft // 2 + 1`` bins and
@@ -490,8 +514,9 @@ def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None) -> Cros
     nfft = _check_int("nfft", nfft, minimum=1)
     if nfft < n_samples:
         raise TactileInputError(f"nfft={nfft} must be at least N={n_samples}", code="bad_setting")
+    _check_leave_one_out(leave_one_out, n_tapers)
     tapers = _dpss_tapers(n_samples, nw, n_tapers)
-    freq, omega, psd, csd = _multitaper_core(x, fs, tapers, nfft=nfft)
+    freq, omega, psd, csd = _multitaper_core(x, fs, tapers, nfft=nfft, leave_one_out=bool(leave_one_out))
     return CrossSpectra(freq, omega, psd, csd, n_tapers, float(n_tapers), "multitaper",
                         _bin_factor(tapers, nfft), _spectral_kernel(tapers, nfft, math.ceil(nw * nfft / n_samples) + 1.0))
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tactile_jax.closed_form import slope_speed
-from tactile_jax.crb import bound_covariance, fisher_information, pair_crb
+from tactile_jax.crb import banded_correlation, bound_covariance, fisher_information, pair_crb
 from tactile_jax.pair_fit import fit_pair
 from tactile_jax.r_curve import log_r_exact
 from tactile_jax.sensor import PAPER_SENSOR
@@ -45,6 +45,26 @@ def test_bin_factor_and_fixed_parameters():
     assert float(bg.a_sd) > 1.5 * float(b1.a_sd)
     assert float(bg.speed_sd[0]) >= float(b1.speed_sd[0])
     assert float(b1.log_cov[2, 2]) == 0.0                     # a known gain: no variance
+
+
+def test_measured_bin_correlation():
+    err = np.full(OMEGA.size, 0.05)
+    mask = (OMEGA > 2 * np.pi * 10) & (OMEGA < 2 * np.pi * 150)
+    b1 = pair_crb(OMEGA, err, mask, D1, D2, 0.023, 2e-3)
+    b0 = pair_crb(OMEGA, err, mask, D1, D2, 0.023, 2e-3, bin_corr=(0.0, 0.0))
+    np.testing.assert_allclose(np.asarray(b0.fisher), np.asarray(b1.fisher), rtol=1e-10)
+    # neighbours sharing noise carry less information than independent bins; sharing it with
+    # the opposite sign, more (for a smooth curve). A smooth model's sum over many bins sees
+    # the white-noise bin_factor 1 + 2 rho: the banded bound lies near it.
+    plus = pair_crb(OMEGA, err, mask, D1, D2, 0.023, 2e-3, bin_corr=(0.3,))
+    minus = pair_crb(OMEGA, err, mask, D1, D2, 0.023, 2e-3, bin_corr=(-0.2,))
+    v1 = float(b1.speed_sd[0])
+    assert float(plus.speed_sd[0]) == pytest.approx(v1 * np.sqrt(1.6), rel=0.1)
+    assert float(minus.speed_sd[0]) == pytest.approx(v1 * np.sqrt(0.6), rel=0.1)
+    # an impossible measured correlation (not positive definite) still gives a finite bound
+    c = banded_correlation((0.9, 0.9), 20)
+    assert np.linalg.eigvalsh(c)[0] > 0 and np.allclose(np.diag(c), 1.0)
+    assert np.isfinite(float(pair_crb(OMEGA, err, mask, D1, D2, 0.023, 2e-3, bin_corr=(0.9, 0.9)).speed_sd[0]))
 
 
 def test_no_information_is_infinite_not_finite():

@@ -41,6 +41,11 @@ def test_oblique_slip_small_contact_recovered(oblique):
     row = res.to_record()
     for key in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth", "model", "window", "status"):
         assert key in row
+    # error bars scaled by the recording's own delete-one-segment jackknife
+    jk = res.jackknife
+    assert res.error_method.startswith("laplace x jackknife") and row["error_scale"] == res.error_scale
+    assert set(jk["variance_ratio"]) == {"vx", "vy", "a"} and 0.2 < jk["pooled"] < 5
+    assert res.error_scale == pytest.approx(max(jk["pooled"], res.redchi))
 
 
 def test_known_velocity_is_held_fixed():

@@ -133,8 +133,14 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     from tactile_jax.io import read_recording
 
     direct = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024))
-    for name in ("vx", "vx_err", "a", "a_err"):
+    for name in ("vx", "a"):
         assert row[name] == pytest.approx(getattr(direct, name), rel=1e-6), name
+    # the same Laplace covariance; the recording's scale is its segments' jackknife, the file's
+    # (no segments) the bin correlation factor
+    assert direct.error_method.startswith("laplace x jackknife") and "bin_factor" in row["error_method"]
+    ratio = np.sqrt(row["error_scale"] / direct.error_scale)
+    for name in ("vx_err", "a_err"):
+        assert row[name] == pytest.approx(getattr(direct, name) * ratio, rel=1e-6), name
 
 
 def test_report_says_fixed_and_undetermined():

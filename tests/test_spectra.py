@@ -310,3 +310,17 @@ def test_burg_recovers_ar2_and_prewhitening_keeps_ratio():
     with pytest.raises(TactileInputError) as err:
         estimate_spectra(sig[:, :20], FS, prewhiten=8)
     assert err.value.code == "too_short"
+
+
+@pytest.mark.parametrize("method", ["welch", "multitaper"])
+def test_leave_one_out_spectra_average_to_the_estimate(method):
+    x = np.random.default_rng(8).standard_normal((4, 2048))
+    full = estimate_spectra(x, 1000.0, method=method, prewhiten=4)
+    loo = estimate_spectra(x, 1000.0, method=method, prewhiten=4, leave_one_out=True)
+    k = full.n_segments
+    assert loo.psd.shape == (k, 4, full.omega.size) and loo.csd.shape == (k, 2, full.omega.size)
+    assert (loo.n_segments, loo.dof) == (k, full.dof)
+    np.testing.assert_allclose(np.mean(loo.psd, axis=0), full.psd, rtol=1e-10)
+    np.testing.assert_allclose(np.mean(loo.csd, axis=0), full.csd, rtol=1e-9, atol=1e-12 * np.abs(full.csd).max())
+    with pytest.raises(TactileInputError, match="leave_one_out"):
+        welch_spectra(x, 1000.0, nperseg=2048, leave_one_out=True)
