@@ -8,11 +8,15 @@ realisations and compares, for the exact-R pair fit (``pair_fit.fit_pair``):
   covariance times ``CrossSpectra.bin_factor`` = 1.94 for Hann Welch);
 - the scatter the estimates actually have across realisations;
 - a linearised delete-one-segment jackknife of the same fit: the log ratio
-  recomputed with each Welch segment left out, pushed through the fit's
-  Gauss-Newton map ``(J^T J)^-1 J^T`` at the estimate (Thomson & Chave 1991);
+  recomputed with each Welch segment left out (``estimate_spectra(...,
+  leave_one_out=True)``), pushed through the fit's Gauss-Newton map at the
+  estimate (``jackknife.linear_shifts``, overlap n_segments / dof put back);
 - the per-bin check (log-ratio scatter over its stated error) and the
   correlation of the log ratio's errors between adjacent bins, which the
-  constant 1.94 assumes to be 4/9 (white noise through a Hann window).
+  constant 1.94 assumes to be 4/9 (white noise through a Hann window): across
+  realisations (rho1, rho2), and as each recording's jackknife measures it
+  (jk1, jk2: ``jackknife.bin_correlation``, median over realisations), the
+  input of the Cramer-Rao bound in ``speed_vs_error``.
 
     python benchmarks/error_calibration.py --reps 16 --out benchmarks/out
 """
@@ -22,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 
@@ -30,10 +35,10 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from tactile_jax import jackknife  # noqa: E402
 from tactile_jax.fit import MIN_PAIR_BAND_BINS, FitOptions, _resolution_nperseg  # noqa: E402
 from tactile_jax.pair_fit import _residuals, fit_pair  # noqa: E402
 from tactile_jax.plotting import provenance  # noqa: E402
-from tactile_jax.prewhiten import whiten_pairs  # noqa: E402
 from tactile_jax.scene import Scene, simulate  # noqa: E402
 from tactile_jax.spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band  # noqa: E402
 from tactile_jax.texture import RandomTexture  # noqa: E402
@@ -44,46 +49,35 @@ PREWHITEN = 8
 SCENES = ((0.04, 1.5e-3, 45.0), (0.04, 1.5e-3, 30.0), (0.04, 4e-3, 45.0), (0.015, 1.5e-3, 60.0), (0.015, 4e-3, 45.0))
 
 
-def segment_log_ratios(signals, nperseg: int):
-    """Delete-one-segment log ratios of the x pair, ``(K, M)``, and the full one, ``(M,)``.
-
-    Numpy Welch (periodic Hann, half overlap, mean removed) of the prewhitened
-    signals: a pair's ratio is unchanged by its whitening filter. Written here
-    because ``spectra`` averages the segments inside its compiled core and does
-    not return them; ``run_scene`` checks that the full ratio matches it.
-    """
-    white, _ = whiten_pairs(jnp.asarray(signals), PREWHITEN)
-    x = np.asarray(white)[:2]
-    step = nperseg // 2
-    k = (x.shape[-1] - nperseg) // step + 1
-    seg = np.stack([x[:, i * step:i * step + nperseg] for i in range(k)], axis=1)
-    seg = seg - seg.mean(axis=-1, keepdims=True)
-    spec = np.fft.rfft(seg * np.hanning(nperseg + 1)[:-1], axis=-1)      # (2, K, M)
-    s11, s12 = np.abs(spec[0]) ** 2, np.conj(spec[0]) * spec[1]
-    t11, t12 = s11.sum(axis=0), s12.sum(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        full = np.log(np.abs(t12) / t11)
-        loo = np.log(np.abs(t12 - s12) / (t11 - s11))
-    return loo, full
-
-
-def jackknife_sd(fit, omega, log_ratio, err, mask, kernel, loo):
-    """Linearised jackknife one-sigma errors of (|v|, a) for a converged pair fit."""
+def pair_args(omega, err, mask, kernel):
+    """``pair_fit._residuals``' data tuple without the measured ratio (``y`` goes in apart)."""
     offsets, weights = (np.asarray(k, float) for k in kernel)
     keep = weights > 0
+    return _PairData(jnp.asarray(omega), jnp.zeros(np.size(omega)), jnp.asarray(err), jnp.asarray(mask),
+                     jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
+
+
+class _PairData(NamedTuple):
+    omega: jax.Array
+    y: jax.Array
+    err: jax.Array
+    mask: jax.Array
+    offsets: jax.Array
+    log_w: jax.Array
+
+
+def _pair_residuals(theta, data):
+    return _residuals(theta, (data.omega, data.y, data.err, data.mask, D1, D2, data.offsets, data.log_w))
+
+
+def jackknife_sd(fit, log_ratio, data, loo, overlap):
+    """Linearised jackknife one-sigma errors of (|v|, a) for a converged pair fit (``jackknife``)."""
     theta = jnp.log(jnp.array([fit.speed, fit.a, 1.0]))
-
-    def res(th, y):
-        return _residuals(th, (jnp.asarray(omega), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask), D1, D2,
-                               jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep]))))
-
-    jac = np.asarray(jax.jacfwd(res)(theta, log_ratio))[:, :2]
-    gain = np.linalg.solve(jac.T @ jac, jac.T)
-    r0 = np.asarray(res(theta, log_ratio))
-    d = np.array([-gain @ (np.asarray(res(theta, np.where(mask, y, 0.0))) - r0) for y in loo])
-    k = d.shape[0]
-    cov = (k - 1) / k * (d - d.mean(axis=0)).T @ (d - d.mean(axis=0))
-    return np.array([fit.speed, fit.a]) * np.sqrt(np.diag(cov))
+    y = jnp.where(data.mask, jnp.asarray(loo), 0.0)
+    shifts, _ = jackknife.linear_shifts(_pair_residuals, theta, data._replace(y=jnp.asarray(log_ratio)), {"y": y},
+                                        jnp.array([True, True, False]))
+    cov = jackknife.covariance(shifts, overlap=overlap)
+    return np.array([fit.speed, fit.a]) * np.sqrt(np.diag(cov)[:2])
 
 
 def run_scene(speed, a, snr, reps, seed0=900):
@@ -102,11 +96,13 @@ def run_scene(speed, a, snr, reps, seed0=900):
         band = np.asarray(usable_band(ratio))[0]
         omega, lr, err = (np.asarray(v) for v in (ratio.omega, ratio.log_ratio[0], ratio.log_ratio_err[0]))
         fit = fit_pair(omega, lr, err, band, D1, D2, kernel=spec.kernel, bin_factor=spec.bin_factor)
-        loo, full = segment_log_ratios(x, nperseg)
-        assert np.allclose(full[band], lr[band], atol=1e-6), "numpy Welch disagrees with estimate_spectra"
-        jk = jackknife_sd(fit, omega, lr, err, band, spec.kernel, loo)
+        loo_spec = estimate_spectra(x, rec.fs, prewhiten=PREWHITEN, nperseg=nperseg, leave_one_out=True)
+        loo = np.asarray(amplitude_ratio(loo_spec).log_ratio[:, 0])
+        jk = jackknife_sd(fit, lr, pair_args(omega, err, band, spec.kernel), loo, spec.n_segments / spec.dof)
+        rho_jk = jackknife.bin_correlation(loo, band, max_lag=2)
         rows.append({"v": fit.speed, "v_err": fit.speed_err, "a": fit.a, "a_err": fit.a_err, "v_jk": jk[0],
-                     "a_jk": jk[1], "n_bins": int(band.sum()), "converged": fit.converged, "k": loo.shape[0]})
+                     "a_jk": jk[1], "n_bins": int(band.sum()), "converged": fit.converged, "k": loo.shape[0],
+                     "rho_jk": [float(r) for r in rho_jk]})
         ratios.append(lr)
         errs.append(err)
         masks.append(band)
@@ -118,7 +114,9 @@ def run_scene(speed, a, snr, reps, seed0=900):
     per_bin = float(np.median(dev.std(axis=0, ddof=1) / np.sqrt(np.mean(err[:, common] ** 2, axis=0))))
     out = {"speed": speed, "a": a, "snr_db": snr, "nperseg": nperseg, "reps": reps, "segments": rows[0]["k"],
            "bins_median": float(np.median([q["n_bins"] for q in rows])), "per_bin_scatter_over_stated": per_bin,
-           "corr_lag1": corr[0], "corr_lag2": corr[1], "rows": rows}
+           "corr_lag1": corr[0], "corr_lag2": corr[1],
+           "corr_jk_lag1": float(np.nanmedian([q["rho_jk"][0] for q in rows])),
+           "corr_jk_lag2": float(np.nanmedian([q["rho_jk"][1] for q in rows])), "rows": rows}
     for name, truth in (("v", speed), ("a", a)):
         est = np.array([q[name] for q in rows])
         out[f"{name}_bias_pct"] = 100 * float(est.mean() / truth - 1)
@@ -135,7 +133,7 @@ def main():
     args = ap.parse_args()
     print(provenance())
     print(f"{'|v| cm/s':>8} {'a mm':>5} {'SNR':>4} {'nperseg':>7} {'K':>3} {'bins':>4} | "
-          f"{'per-bin':>7} {'rho1':>6} {'rho2':>6} | {'v bias':>7} {'v sd':>6} {'stated':>6} {'jackkn':>6} | "
+          f"{'per-bin':>7} {'rho1':>6} {'rho2':>6} {'jk1':>6} {'jk2':>6} | {'v bias':>7} {'v sd':>6} {'stated':>6} {'jackkn':>6} | "
           f"{'a sd':>6} {'stated':>6} {'jackkn':>6}   (% of truth)")
     results = []
     for speed, a, snr in SCENES:
@@ -143,7 +141,7 @@ def main():
         results.append(s)
         print(f"{100 * speed:8.1f} {1e3 * a:5.1f} {snr:4.0f} {s['nperseg']:7d} {s['segments']:3d} "
               f"{s['bins_median']:4.0f} | {s['per_bin_scatter_over_stated']:7.2f} {s['corr_lag1']:+6.2f} "
-              f"{s['corr_lag2']:+6.2f} | {s['v_bias_pct']:+7.2f} {s['v_sd_pct']:6.2f} {s['v_stated_pct']:6.2f} "
+              f"{s['corr_lag2']:+6.2f} {s['corr_jk_lag1']:+6.2f} {s['corr_jk_lag2']:+6.2f} | {s['v_bias_pct']:+7.2f} {s['v_sd_pct']:6.2f} {s['v_stated_pct']:6.2f} "
               f"{s['v_jk_pct']:6.2f} | {s['a_sd_pct']:6.2f} {s['a_stated_pct']:6.2f} {s['a_jk_pct']:6.2f}",
               flush=True)
     args.out.mkdir(parents=True, exist_ok=True)

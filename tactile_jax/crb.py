@@ -8,9 +8,10 @@ Adjacent spectral bins are correlated: for a model that is smooth across bins
 the information of M correlated bins is that of M / ``bin_factor``
 independent ones (``CrossSpectra.bin_factor``), so F is divided by it. The
 white-noise ``bin_factor`` (Hann: 1.94) overstates the correlation of the log
-ratio's errors, -0.2..+0.3 between neighbours (benchmarks/README.md, "Error
-calibration"): ``pair_crb`` also takes the correlations measured on the
-recording (``jackknife.bin_correlation``), F = J^T C^-1 J with C banded.
+ratio's errors, -0.23..+0.25 between neighbours across realisations
+(benchmarks/README.md, "Error calibration"): ``pair_crb`` also takes measured
+correlations, F = J^T C^-1 J with C banded (``jackknife.bin_correlation``
+estimates them from one recording, but 0.1-0.4 too high).
 Parameters are fitted in log space; sd(v) = v sd(log v) is exact for the
 bound (its Jacobian is v). Two models:
 
@@ -122,7 +123,7 @@ def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fi
     spectral window ``(offsets in bins, weights)``, as in ``fit_pair``.
     bin_factor: correlation of adjacent bins (``CrossSpectra.bin_factor``).
     bin_corr: instead, the correlations of the log ratio's errors at lags 1, 2, ...
-    bins (``jackknife.bin_correlation``): F = J^T C^-1 J over the used bins.
+    bins: F = J^T C^-1 J over the used bins.
     """
     err = jnp.asarray(log_ratio_err)
     mask = jnp.asarray(mask, bool) & jnp.isfinite(err) & (err > 0)
