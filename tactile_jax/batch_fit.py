@@ -24,8 +24,9 @@
 
 Statuses are computed as arrays (``ok``, ``no_band``, ``not_converged``,
 ``poor_fit`` when the reduced chi-square exceeds 4, ``failed`` for non-finite
-values); errors are the Gauss-Newton ones scaled by max(redchi, 1) (they only
-inflate, as in ``fit``). Unlike ``fit.fit_recording`` the batch uses one
+values); errors are the Gauss-Newton ones scaled as in ``fit``: the pair model's
+by max(redchi, 1) x bin_factor, the joint model's by its delete-one-segment
+jackknife (never below redchi; ``jackknife``). Unlike ``fit.fit_recording`` the batch uses one
 Welch segment length for the whole chunk: the default for the recordings' N
 (not for the N - p samples prewhitening leaves), refined for slow slips by
 ``fit``'s rule applied to the chunk's median record (``resolution_nperseg``; a
@@ -42,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import jackknife
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
 from .fit import FitOptions, dominant_line, leakage_only, resolution_segment
@@ -111,7 +113,9 @@ class ChunkFit(NamedTuple):
 
     vx, vx_err, vy, vy_err: m/s. a, a_err: m. gx, gx_err, gy, gy_err: gain ratios.
     k0: (B, 2) rad/m. redchi, chi2, cond: fit statistics. n_bins: usable bins fitted.
-    converged: bool. status: (B,) str. message: (B,) str.
+    converged: bool. status: (B,) str. message: (B,) str. error_scale: the variance scale
+    of the joint model's Laplace covariance from its jackknife (NaN: the pair model's
+    max(redchi, 1) x bin_factor, or the joint one's max(redchi, 1) when the jackknife failed).
     """
 
     vx: np.ndarray
@@ -132,14 +136,16 @@ class ChunkFit(NamedTuple):
     converged: np.ndarray
     status: np.ndarray
     message: np.ndarray
+    error_scale: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------- stage 1: spectra and bands
 
 
-def _spectra(x, fs, options: FitOptions, nperseg):
+def _spectra(x, fs, options: FitOptions, nperseg, leave_one_out: bool = False):
     kw = {"nperseg": nperseg} if (nperseg and options.method == "welch") else {}
-    return estimate_spectra(x, fs, method=options.method, prewhiten=options.prewhiten, **kw)
+    return estimate_spectra(x, fs, method=options.method, prewhiten=options.prewhiten, leave_one_out=leave_one_out,
+                            **kw)
 
 
 def _main_band(band):
@@ -180,8 +186,8 @@ def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: in
     return int(np.sort(want)[(want.size - 1) // 2])
 
 
-@partial(jax.jit, static_argnames=("options", "nperseg"))
-def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg):
+@partial(jax.jit, static_argnames=("options", "nperseg", "leave_one_out"))
+def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg, leave_one_out: bool = False):
     def one(x, f, d, g):
         spec = _spectra(x, f, options, nperseg)
         ratio = amplitude_ratio(spec)
@@ -202,9 +208,13 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg)
         i_lo = jnp.maximum(jnp.min(jnp.where(any_band, idx, m)), 1)
         i_hi = jnp.max(jnp.where(any_band, idx, 0))
         white = spec.whitening if spec.whitening is not None else jnp.zeros((2, 1), shallow.dtype).at[:, 0].set(1.0)
-        return dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
-                    shallow=shallow, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
-                    line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
+        out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
+                   shallow=shallow, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
+                   line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
+        if leave_one_out:                   # the delete-one-segment spectra of the jackknife (the joint model)
+            loo = _spectra(x, f, options, nperseg, leave_one_out=True)
+            out.update(loo_log_ratio=amplitude_ratio(loo).log_ratio, loo_shallow=loo.psd[:, 0::2])
+        return out
 
     return jax.vmap(one)(signals, fs, depths, gains)
 
@@ -428,7 +438,8 @@ def _knot_start(log_k_obs, phi_obs, sel, log_knots):
     return jnp.where(sw_near > 1e-6, near, far)
 
 
-def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, banded, rel_grid, dof, bin_factor):
+def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, banded, rel_grid, dof, bin_factor,
+               overlap):
     """The joint 2-D model of one record from the pair fits' starts; the best of two speed starts."""
     om, idx, valid = _window(stage, i0, length)
     d1, d2 = d[0], d[1]
@@ -502,7 +513,19 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     fits = jax.vmap(from_start)(starts)
     chi2 = jnp.where(jnp.isfinite(fits.chi2), fits.chi2, jnp.inf)
     best = jnp.argmin(chi2)
-    return jax.tree_util.tree_map(lambda t: t[best], fits), free
+    fit = jax.tree_util.tree_map(lambda t: t[best], fits)
+    return fit, free, _joint_error_scale(fit, free, data, stage, idx, overlap)
+
+
+def _joint_error_scale(fit, free, data, stage, idx, overlap):
+    """The variance scale of the joint fit's unit covariance, as ``fit._error_scale``: the
+    delete-one-segment jackknife pooled over vx, vy, a, never below redchi (NaN: none)."""
+    lr_k = jnp.where(data.mask_h, stage["loo_log_ratio"][:, :, idx], 0.0)
+    s11_k = jnp.where(data.mask_s11, jnp.log(jnp.clip(stage["loo_shallow"][:, :, idx], 1e-300, None)), 0.0)
+    shifts, unit = jackknife.linear_shifts(jm.residuals, fit.theta, data, {"log_h": lr_k, "log_s11": s11_k}, free)
+    cov = jackknife.covariance(shifts, overlap=overlap)
+    pooled = jackknife.pooled_scale(cov, unit, free & (jnp.arange(free.shape[0]) < 3))
+    return jnp.where(jnp.isfinite(pooled) & (pooled > 0), jnp.maximum(pooled, fit.redchi), jnp.nan)
 
 
 def _summarise_pair(pair, n_band, known, vel, options):
@@ -539,9 +562,11 @@ def _summarise_pair(pair, n_band, known, vel, options):
                 n_bins=jnp.sum(jnp.where(fitted, pair.n_data, 0)), enough=jnp.any(fitted))
 
 
-def _summarise_joint(fit, free, known, vel, n_band):
+def _summarise_joint(fit, free, known, vel, n_band, scale):
     redchi = fit.redchi
-    inflate = jnp.where(redchi > 0, jnp.maximum(redchi, 1.0) / jnp.where(redchi > 0, redchi, 1.0), 1.0)
+    # the jackknife's scale (``_joint_error_scale``), else max(redchi, 1); lsq's cov carries redchi
+    used = jnp.where(jnp.isfinite(scale), scale, jnp.maximum(redchi, 1.0))
+    inflate = jnp.where(redchi > 0, used / jnp.where(redchi > 0, redchi, 1.0), 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diagonal(fit.cov) * inflate, 0, None))
     th = jnp.exp(fit.theta[:5])
     speed = jnp.where(known, vel, th[:2])
@@ -554,13 +579,14 @@ def _summarise_joint(fit, free, known, vel, n_band):
                 a_err=jnp.where(weak, jnp.nan, a_err), a_weak=weak, gain=gain, gain_err=gain_err,
                 redchi=redchi, chi2=fit.chi2, cond=fit.cond, converged=fit.converged,
                 finite=jnp.all(jnp.isfinite(fit.theta)) & jnp.isfinite(fit.chi2),
-                n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS)
+                n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS, error_scale=scale)
 
 
 @partial(jax.jit, static_argnames=("options", "model", "length", "n_fit", "kernel", "dof", "bin_factor", "group",
-                                   "solver", "span"))
+                                   "solver", "span", "overlap"))
 def _fit_stage(stage, depths, gains, velocity, known, *, options: FitOptions, model: str, length: int, n_fit: int,
-               kernel: tuple, dof: float, bin_factor: float, group: int, solver: str, span: int = 0):
+               kernel: tuple, dof: float, bin_factor: float, group: int, solver: str, span: int = 0,
+               overlap: float = 1.0):
     offsets, weights = (np.asarray(k, float) for k in kernel)
     offsets_k, weights_k = _kept_kernel(kernel)
     log_w = jnp.asarray(np.log(weights_k))
@@ -581,9 +607,9 @@ def _fit_stage(stage, depths, gains, velocity, known, *, options: FitOptions, mo
         pair = _pair_fits(st, d, g, vel, kn, n_fit, options, offsets_k, log_w, bin_factor, solver, span)
         if model == "pair":
             return _summarise_pair(pair, n_band, kn, vel, options)
-        fit, free = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
-                               bin_factor)
-        return _summarise_joint(fit, free, kn, vel, n_band)
+        fit, free, scale = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
+                                      bin_factor, overlap)
+        return _summarise_joint(fit, free, kn, vel, n_band, scale)
 
     xs = (stage, depths, gains, velocity, known)
     return jax.lax.map(lambda args: one(*args), xs, batch_size=group)
@@ -658,7 +684,8 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
         # the default for the recording's N, not for the N - p samples that prewhitening leaves
         # (8192 -> 1024, not 512: coarse bins bias the speed of slow slips, see benchmarks/README.md)
         nperseg = default_nperseg(x.shape[-1])
-    stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg)
+    loo = program.model == "joint"
+    stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, leave_one_out=loo)
     if program.resolution and program.nperseg is None and options.method == "welch":
         nperseg0 = nperseg
         finer = resolution_nperseg(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
@@ -666,7 +693,7 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
                                    n_band=np.asarray(stage["band"]).sum(axis=-1) if program.model == "pair" else None)
         if finer > nperseg0:
             nperseg = finer
-            stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg)
+            stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, leave_one_out=loo)
     program.last_nperseg = 2 * (stage["omega"].shape[-1] - 1)
     stage["fs"] = fs
     i_lo, i_hi, band = (np.asarray(stage[k]) for k in ("i_lo", "i_hi", "band"))
@@ -682,7 +709,7 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     out = _fit_stage(stage, depths, gains, velocity, known, options=options, model=program.model,
                      length=length, n_fit=n_fit, kernel=kernel, dof=float(spec_meta.dof),
                      bin_factor=float(spec_meta.bin_factor), group=int(program.group), solver=program.solver,
-                     span=pair_span)
+                     span=pair_span, overlap=float(spec_meta.n_segments / spec_meta.dof))
     out = {k: np.asarray(v) for k, v in out.items()}
     program.timings["fit"] += time.perf_counter() - t1
     k0 = np.asarray(stage["k0"])
@@ -736,7 +763,8 @@ def _statuses(out: dict, k0, known, program: FitProgram) -> ChunkFit:
                     gy=blank(out["gain"][:, 1]), gy_err=blank(out["gain_err"][:, 1]),
                     k0=np.asarray(k0, float), redchi=blank(out["redchi"]), chi2=blank(out["chi2"]),
                     cond=blank(out["cond"]), n_bins=np.asarray(out["n_bins"], int),
-                    converged=np.asarray(out["converged"], bool) & ~bad, status=status, message=message)
+                    converged=np.asarray(out["converged"], bool) & ~bad, status=status, message=message,
+                    error_scale=blank(out["error_scale"]) if "error_scale" in out else np.full(b, np.nan))
 
 
 def chunk_rows(fit: ChunkFit, meta: ChunkMeta, files, indices, *, model: str, options: FitOptions,
@@ -768,5 +796,9 @@ def chunk_rows(fit: ChunkFit, meta: ChunkMeta, files, indices, *, model: str, op
                    converged=bool(fit.converged[i]), status=str(fit.status[i]), message=str(fit.message[i]))
         row.update(gain_ratio_y=num(fit.gy[i]), gain_ratio_y_err=num(fit.gy_err[i]), redchi=num(fit.redchi[i]),
                    n_bins=int(fit.n_bins[i]), cond=num(fit.cond[i]), solver=solver or options.solver, precision=precision)
+        scale = None if fit.error_scale is None else num(fit.error_scale[i])
+        row.update(error_scale=scale, error_method=(
+            "laplace x jackknife" if scale is not None else
+            "laplace x max(redchi, 1) x bin_factor" if model == "pair" else "laplace x max(redchi, 1)"))
         rows.append(row)
     return rows

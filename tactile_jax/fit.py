@@ -623,11 +623,12 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
               "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(leave_one_out.psd[:, 0::2][..., idx], 1e-300)), 0.0)}
     shifts, unit = jackknife.linear_shifts(jm.residuals, fit.theta, data, fields, jnp.asarray(free))
     k = leave_one_out.n_segments
-    cov = jackknife.covariance(shifts, overlap=k / leave_one_out.dof)
+    cov = np.asarray(jackknife.covariance(shifts, overlap=k / leave_one_out.dof))
     unit = np.asarray(unit)
-    phys = [i for i in range(3) if free[i] and unit[i, i] > 0]
-    ratios = {name: float(cov[i, i] / unit[i, i]) for i, name in zip(range(3), ("vx", "vy", "a")) if i in phys}
-    pooled = jackknife.pooled_scale(cov, unit, phys)
+    phys = np.arange(free.size) < 3
+    ratios = {name: float(cov[i, i] / unit[i, i]) for i, name in enumerate(("vx", "vy", "a"))
+              if free[i] and unit[i, i] > 0}
+    pooled = float(jackknife.pooled_scale(cov, unit, phys & free))
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios, "pooled": pooled,
                      "redchi": redchi, "fallback": fallback}
     if not np.isfinite(pooled) or pooled <= 0:

@@ -46,31 +46,33 @@ def linear_shifts(residuals: Callable, theta, data, replaced: dict, free):
     return -(d_r @ jac) @ unit, unit
 
 
-def covariance(shifts, overlap: float = 1.0) -> np.ndarray:
+def covariance(shifts, overlap=1.0):
     """Jackknife covariance (K-1)/K sum (d_k - mean)(d_k - mean)^T of shifts (K, P), times ``overlap``.
 
     overlap: n_segments / dof for overlapping Welch segments (Hann, half
-    overlap: 1.2); the delete-one jackknife treats the segments as independent
-    and would otherwise miss their shared samples. 1 for tapers.
+    overlap: 1.05 for 30 segments); the delete-one jackknife treats the segments
+    as independent and would otherwise miss their shared samples. 1 for tapers.
+    jnp (works on numpy input, under jit and vmap).
     """
-    d = np.asarray(shifts, float)
+    d = jnp.asarray(shifts)
     k = d.shape[0]
     dev = d - d.mean(axis=0)
-    return (k - 1) / k * (dev.T @ dev) * float(overlap)
+    return (k - 1) / k * (dev.T @ dev) * overlap
 
 
-def pooled_scale(cov_jk, unit_cov, index) -> float:
-    """One variance scale for the Laplace covariance: the mean over ``index`` of cov_jk / unit_cov (diagonals).
+def pooled_scale(cov_jk, unit_cov, use):
+    """One variance scale for the Laplace covariance: the mean over ``use`` of cov_jk / unit_cov (diagonals).
 
-    A single recording's jackknife variance has about K - 1 degrees of freedom
-    per parameter; pooling the ratio over the physical parameters steadies it
-    and keeps the Laplace correlations.
+    use: (P,) bool, the parameters to pool (zero-variance ones are skipped); NaN
+    when none. A single recording's jackknife variance has about K - 1 degrees
+    of freedom per parameter; pooling the ratio over the physical parameters
+    steadies it and keeps the Laplace correlations. jnp.
     """
-    index = np.asarray(index, int)
-    if index.size == 0:
-        return float("nan")
-    ratio = np.diag(cov_jk)[index] / np.diag(unit_cov)[index]
-    return float(np.mean(ratio))
+    unit = jnp.diag(jnp.asarray(unit_cov))
+    use = jnp.asarray(use, bool) & (unit > 0)
+    ratio = jnp.diag(jnp.asarray(cov_jk)) / jnp.where(use, unit, 1.0)
+    n = jnp.sum(use)
+    return jnp.where(n > 0, jnp.sum(jnp.where(use, ratio, 0.0)) / jnp.maximum(n, 1), jnp.nan)
 
 
 def bin_correlation(values, mask, max_lag: int = 2) -> np.ndarray:

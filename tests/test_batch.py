@@ -86,6 +86,7 @@ def test_rows_for_every_record_and_bad_input(local_run, dataset):
         speed = row["vx"] if vx > vy else row["vy"]
         assert speed == pytest.approx(max(vx, vy), rel=0.1)
         assert row["a"] == pytest.approx(a, rel=0.5)
+        assert row["error_method"] == "laplace x max(redchi, 1) x bin_factor" and row["error_scale"] is None
     # the same record in two files gives the same numbers (padding and chunk position do not matter)
     assert rows[(multi, 2)]["vx"] == pytest.approx(rows[(one, 0)]["vx"], rel=1e-9)
     assert rows[(multi, 0)]["vx"] == pytest.approx(rows[(nan, 0)]["vx"], rel=1e-9)
@@ -259,3 +260,23 @@ def test_resolution_nperseg_follows_the_slowest_majority():
     mixed = np.array([[0.2, 0.0], [0.2, 0.0], [0.005, 0.0]])                        # the median record's
     assert rule(mixed, ok, fs, d, 65536, 1024) == 1024
     assert rule(mixed, np.zeros((3, 2), bool), fs, d, 65536, 1024) == 1024          # no speed: the default
+
+
+def test_joint_model_error_bars_from_the_jackknife():
+    """The batch's joint model scales its errors by each record's delete-one-segment jackknife, as
+    ``fit_recording`` does (16 s records, oblique slip: both pairs carry the slip)."""
+    truth = [(0.03, 0.012, 1.5e-3), (0.015, 0.03, 1.2e-3)]
+    x = np.stack([simulate(Scene(velocity=(vx, vy), contact_radius=a, snr_db=45.0, seed=20 + k)).signals
+                  for k, (vx, vy, a) in enumerate(truth)])
+    b = len(truth)
+    meta = batch_fit.ChunkMeta(fs=np.full(b, 1000.0), depths=np.tile(DEPTHS, (b, 1)), gains=np.ones((b, 2)),
+                               velocity=np.zeros((b, 2)), known=np.zeros((b, 2), bool),
+                               curvature_radius=np.full(b, 0.03))
+    program = batch_fit.FitProgram(model="joint")
+    rows = batch_fit.chunk_rows(program(x, meta), meta, ["chunk"] * b, range(b), model="joint",
+                                options=program.options)
+    for row, (vx, vy, a) in zip(rows, truth):
+        assert row["status"] == "ok" and row["error_method"] == "laplace x jackknife", row
+        assert 0.3 < row["error_scale"] < 5
+        for name, true in (("vx", vx), ("vy", vy), ("a", a)):
+            assert abs(row[name] - true) < 4 * row[name + "_err"], (name, row[name], row[name + "_err"], true)
