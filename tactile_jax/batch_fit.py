@@ -46,7 +46,7 @@ import numpy as np
 from . import jackknife
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import FitOptions, dominant_line, leakage_only, resolution_segment
+from .fit import FitOptions, dominant_line, jackknife_variances, leakage_only, resolution_segment
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
@@ -520,11 +520,9 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
 def _joint_error_scale(fit, free, data, stage, idx, overlap):
     """The variance scale of the joint fit's unit covariance, as ``fit._error_scale``: the
     delete-one-segment jackknife pooled over vx, vy, a, never below redchi (NaN: none)."""
-    lr_k = jnp.where(data.mask_h, stage["loo_log_ratio"][:, :, idx], 0.0)
-    s11_k = jnp.where(data.mask_s11, jnp.log(jnp.clip(stage["loo_shallow"][:, :, idx], 1e-300, None)), 0.0)
-    shifts, unit = jackknife.linear_shifts(jm.residuals, fit.theta, data, {"log_h": lr_k, "log_s11": s11_k}, free)
-    cov = jackknife.covariance(shifts, overlap=overlap)
-    pooled = jackknife.pooled_scale(cov, unit, free & (jnp.arange(free.shape[0]) < 3))
+    var, var_unit = jackknife_variances(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx,
+                                        overlap)
+    pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))
     return jnp.where(jnp.isfinite(pooled) & (pooled > 0), jnp.maximum(pooled, fit.redchi), jnp.nan)
 
 

@@ -604,31 +604,27 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
 def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
     """The variance scale of the fit's unit covariance (J^T J)^-1; records how it was found in ``res``.
 
-    With delete-one spectra: the jackknife's variance over the Laplace one, pooled over
-    the free speeds and radius (``jackknife``), never below the reduced chi-square
-    (a misfit the segments share). On benchmarks/coverage.py's 100 scenes the pulls'
-    sd is 0.95-1.07 with it, 0.80-0.87 with the constant factor. Without (recorded spectra, or too few segments):
-    max(redchi, 1) x the spectra's ``bin_factor``, which counts adjacent bins as
-    correlated as white noise's (Hann: 1.94); the real correlation of the log
-    ratio's errors is -0.2..+0.3 and those errors are 1.0-2.1x too wide
-    (benchmarks/README.md, "Error calibration").
+    With delete-one spectra: the jackknife's variance over the Laplace one, pooled
+    over the free speeds and radius (``jackknife``), never below the reduced
+    chi-square (a misfit the segments share). On benchmarks/coverage.py's 100
+    scenes the pulls' sd is 0.95-1.07 with it, 0.80-0.87 with the constant factor.
+    Without (recorded spectra, or too few segments): max(redchi, 1) x the spectra's
+    ``bin_factor``, which counts adjacent bins as correlated as white noise's
+    (Hann: 1.94); the log ratio's errors correlate by -0.23..+0.25, and the errors
+    come out 1.0-2.1x too wide (benchmarks/README.md, "Error calibration").
     """
     redchi = float(fit.redchi)
     fallback = max(redchi, 1.0) * max(float(spec.bin_factor), 1.0)
     res.error_scale, res.error_method = fallback, "laplace x max(redchi, 1) x bin_factor"
     if leave_one_out is None:
         return fallback
-    ratio = amplitude_ratio(leave_one_out)
-    fields = {"log_h": jnp.where(data.mask_h, ratio.log_ratio[..., idx], 0.0),
-              "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(leave_one_out.psd[:, 0::2][..., idx], 1e-300)), 0.0)}
-    shifts, unit = jackknife.linear_shifts(jm.residuals, fit.theta, data, fields, jnp.asarray(free))
     k = leave_one_out.n_segments
-    cov = np.asarray(jackknife.covariance(shifts, overlap=k / leave_one_out.dof))
-    unit = np.asarray(unit)
-    phys = np.arange(free.size) < 3
-    ratios = {name: float(cov[i, i] / unit[i, i]) for i, name in enumerate(("vx", "vy", "a"))
-              if free[i] and unit[i, i] > 0}
-    pooled = float(jackknife.pooled_scale(cov, unit, phys & free))
+    var, var_unit = (np.asarray(v) for v in jackknife_variances(
+        fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
+        idx, k / leave_one_out.dof))
+    ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(("vx", "vy", "a"))
+              if free[i] and var_unit[i] > 0}
+    pooled = float(jackknife.pooled_scale(var, var_unit, free & (np.arange(free.size) < 3)))
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios, "pooled": pooled,
                      "redchi": redchi, "fallback": fallback}
     if not np.isfinite(pooled) or pooled <= 0:
@@ -636,6 +632,18 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
     scale = max(pooled, redchi)
     res.error_scale, res.error_method = scale, f"laplace x jackknife ({k} segments)"
     return scale
+
+
+def jackknife_variances(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap):
+    """Jackknife and unit Laplace variances (P,), (P,) of a joint fit's parameters (jnp; batch-safe).
+
+    log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
+    K delete-one spectra; idx: (L,) the bins of ``data``; overlap: n_segments / dof.
+    """
+    fields = {"log_h": jnp.where(data.mask_h, log_ratio_k[:, :, idx], 0.0),
+              "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], 1e-300, None)), 0.0)}
+    shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
+    return jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
 
 
 def _select_model(res, fit, free, data, options, n_prior, bin_factor, noise0):

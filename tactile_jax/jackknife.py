@@ -60,17 +60,18 @@ def covariance(shifts, overlap=1.0):
     return (k - 1) / k * (dev.T @ dev) * overlap
 
 
-def pooled_scale(cov_jk, unit_cov, use):
-    """One variance scale for the Laplace covariance: the mean over ``use`` of cov_jk / unit_cov (diagonals).
+def pooled_scale(var_jk, var_unit, use):
+    """One variance scale for the Laplace covariance: the mean over ``use`` of var_jk / var_unit.
 
-    use: (P,) bool, the parameters to pool (zero-variance ones are skipped); NaN
-    when none. A single recording's jackknife variance has about K - 1 degrees
-    of freedom per parameter; pooling the ratio over the physical parameters
-    steadies it and keeps the Laplace correlations. jnp.
+    var_jk, var_unit: (P,) jackknife and unit (J^T J)^-1 variances; use: (P,) bool,
+    the parameters to pool (zero-variance ones are skipped); NaN when none. A
+    single recording's jackknife variance has about K - 1 degrees of freedom per
+    parameter; pooling the ratio over the physical parameters steadies it and
+    keeps the Laplace correlations. jnp.
     """
-    unit = jnp.diag(jnp.asarray(unit_cov))
-    use = jnp.asarray(use, bool) & (unit > 0)
-    ratio = jnp.diag(jnp.asarray(cov_jk)) / jnp.where(use, unit, 1.0)
+    var_unit = jnp.asarray(var_unit)
+    use = jnp.asarray(use, bool) & (var_unit > 0)
+    ratio = jnp.asarray(var_jk) / jnp.where(use, var_unit, 1.0)
     n = jnp.sum(use)
     return jnp.where(n > 0, jnp.sum(jnp.where(use, ratio, 0.0)) / jnp.maximum(n, 1), jnp.nan)
 

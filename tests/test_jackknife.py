@@ -42,12 +42,13 @@ def test_linear_model_shifts_are_exact_refits_and_variance_is_the_real_one():
                                rtol=1e-8, atol=1e-15)
     # the jackknife sees the real noise: a variance 1/4 of the stated one (+/- 2 sqrt(2/K) ~ 14 %)
     cov = np.asarray(jackknife.covariance(shifts))
-    assert float(jackknife.pooled_scale(cov, unit, free)) == pytest.approx(0.25, rel=0.15)
+    var, var_unit = np.diag(cov), np.diag(unit)
+    assert float(jackknife.pooled_scale(var, var_unit, free)) == pytest.approx(0.25, rel=0.15)
     assert float(jackknife.covariance(shifts, overlap=1.5)[0, 0]) == pytest.approx(1.5 * cov[0, 0])
-    assert np.isnan(float(jackknife.pooled_scale(cov, unit, np.zeros(3, bool))))
+    assert np.isnan(float(jackknife.pooled_scale(var, var_unit, np.zeros(3, bool))))
     # a fixed parameter (zero variance) is never pooled, even when asked for
-    assert float(jackknife.pooled_scale(cov, unit, np.ones(3, bool))) == pytest.approx(
-        float(jackknife.pooled_scale(cov, unit, free)))
+    assert float(jackknife.pooled_scale(var, var_unit, np.ones(3, bool))) == pytest.approx(
+        float(jackknife.pooled_scale(var, var_unit, free)))
 
 
 def test_bin_correlation_of_moving_average_noise():
