@@ -43,10 +43,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import jackknife
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import FitOptions, dominant_line, jackknife_variances, leakage_only, resolution_segment
+from .fit import FitOptions, dominant_line, joint_jackknife, leakage_only, resolution_segment
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
@@ -514,16 +513,10 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     chi2 = jnp.where(jnp.isfinite(fits.chi2), fits.chi2, jnp.inf)
     best = jnp.argmin(chi2)
     fit = jax.tree_util.tree_map(lambda t: t[best], fits)
-    return fit, free, _joint_error_scale(fit, free, data, stage, idx, overlap)
-
-
-def _joint_error_scale(fit, free, data, stage, idx, overlap):
-    """The variance scale of the joint fit's unit covariance, as ``fit._error_scale``: the
-    delete-one-segment jackknife pooled over vx, vy, a, never below redchi (NaN: none)."""
-    var, var_unit = jackknife_variances(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx,
-                                        overlap)
-    pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))
-    return jnp.where(jnp.isfinite(pooled) & (pooled > 0), jnp.maximum(pooled, fit.redchi), jnp.nan)
+    # the error bars' variance scale from the delete-one-segment jackknife, as ``fit_recording``'s
+    *_, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx, overlap,
+                                fit.redchi)
+    return fit, free, scale
 
 
 def _summarise_pair(pair, n_band, known, vel, options):
@@ -562,7 +555,7 @@ def _summarise_pair(pair, n_band, known, vel, options):
 
 def _summarise_joint(fit, free, known, vel, n_band, scale):
     redchi = fit.redchi
-    # the jackknife's scale (``_joint_error_scale``), else max(redchi, 1); lsq's cov carries redchi
+    # the jackknife's scale (``fit.joint_jackknife``), else max(redchi, 1); lsq's cov carries redchi
     used = jnp.where(jnp.isfinite(scale), scale, jnp.maximum(redchi, 1.0))
     inflate = jnp.where(redchi > 0, used / jnp.where(redchi > 0, redchi, 1.0), 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diagonal(fit.cov) * inflate, 0, None))

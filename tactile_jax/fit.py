@@ -242,9 +242,9 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
             if finer:
                 spec = estimate_spectra(signals, one.fs, method="welch", prewhiten=options.prewhiten, nperseg=finer)
         # the same estimator with each segment (taper) left out in turn: the jackknife of the errors
-        nperseg = {"nperseg": 2 * (spec.omega.size - 1)} if options.method == "welch" else {}
+        loo_kw = {**kw, "nperseg": 2 * (spec.omega.size - 1)} if options.method == "welch" else kw
         loo = (estimate_spectra(signals, one.fs, method=options.method, prewhiten=options.prewhiten,
-                                leave_one_out=True, **{**kw, **nperseg}) if spec.n_segments >= _MIN_JACKKNIFE else None)
+                                leave_one_out=True, **loo_kw) if spec.n_segments >= _MIN_JACKKNIFE else None)
     except TactileInputError as err:
         raise err.with_source(src) from None
     options = _options_from_file(options, one)
@@ -619,31 +619,35 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
     if leave_one_out is None:
         return fallback
     k = leave_one_out.n_segments
-    var, var_unit = (np.asarray(v) for v in jackknife_variances(
+    var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
-        idx, k / leave_one_out.dof))
+        idx, k / leave_one_out.dof, fit.redchi))
     ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(("vx", "vy", "a"))
               if free[i] and var_unit[i] > 0}
-    pooled = float(jackknife.pooled_scale(var, var_unit, free & (np.arange(free.size) < 3)))
-    res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios, "pooled": pooled,
-                     "redchi": redchi, "fallback": fallback}
-    if not np.isfinite(pooled) or pooled <= 0:
+    res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios,
+                     "pooled": float(pooled), "redchi": redchi, "fallback": fallback}
+    if not np.isfinite(scale):
         return fallback
-    scale = max(pooled, redchi)
-    res.error_scale, res.error_method = scale, f"laplace x jackknife ({k} segments)"
-    return scale
+    res.error_scale, res.error_method = float(scale), f"laplace x jackknife ({k} segments)"
+    return float(scale)
 
 
-def jackknife_variances(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap):
-    """Jackknife and unit Laplace variances (P,), (P,) of a joint fit's parameters (jnp; batch-safe).
+def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi):
+    """The delete-one-segment jackknife of a joint fit (jnp; the batch's compiled stage calls it too).
 
     log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
     K delete-one spectra; idx: (L,) the bins of ``data``; overlap: n_segments / dof.
+    Returns the jackknife and unit Laplace variances (P,), (P,), their ratio pooled
+    over the free vx, vy, a, and the variance scale of the error bars: the pooled
+    ratio, never below ``redchi`` (NaN when there is none).
     """
     fields = {"log_h": jnp.where(data.mask_h, log_ratio_k[:, :, idx], 0.0),
               "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], 1e-300, None)), 0.0)}
     shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
-    return jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
+    var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
+    pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))
+    scale = jnp.where(jnp.isfinite(pooled) & (pooled > 0), jnp.maximum(pooled, redchi), jnp.nan)
+    return var, var_unit, pooled, scale
 
 
 def _select_model(res, fit, free, data, options, n_prior, bin_factor, noise0):

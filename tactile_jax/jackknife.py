@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .lsq import equilibrated_inverse
+
 __all__ = ["linear_shifts", "covariance", "pooled_scale", "bin_correlation"]
 
 
@@ -37,12 +39,8 @@ def linear_shifts(residuals: Callable, theta, data, replaced: dict, free):
     r0 = residuals(theta, data)
     jac = jax.jacfwd(residuals)(theta, data) * free
     d_r = jax.vmap(lambda fields: residuals(theta, data._replace(**fields)) - r0)(replaced)   # (K, R)
-    both = free[:, None] & free[None, :]
-    jtj = jac.T @ jac
-    # equilibrated pseudo-inverse, as ``lsq.fit_statistics`` forms the Laplace covariance
-    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), 1e-300, None)), 1.0)
-    scaled = jnp.where(both, jtj / (d[:, None] * d[None, :]), jnp.eye(theta.shape[0]))
-    unit = jnp.where(both, jnp.linalg.pinv(scaled, hermitian=True) / (d[:, None] * d[None, :]), 0.0)
+    d, _, inv = equilibrated_inverse(jac.T @ jac, free)        # as the Laplace covariance of ``lsq``
+    unit = jnp.where(free[:, None] & free[None, :], inv / (d[:, None] * d[None, :]), 0.0)
     return -(d_r @ jac) @ unit, unit
 
 

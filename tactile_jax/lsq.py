@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-__all__ = ["LsqResult", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL"]
+__all__ = ["LsqResult", "equilibrated_inverse", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL"]
 
 SOLVERS = ("optimistix", "jaxopt")
 #: a solve stopped by ``max_steps`` still counts as converged below this Gauss-Newton decrement (chi2 units)
@@ -56,6 +56,20 @@ class LsqResult(NamedTuple):
     decrement: jax.Array | float = float("nan")
 
 
+def equilibrated_inverse(jtj, free):
+    """(d, scaled, inv) of the free block of J^T J (P, P): unit-diagonal form and its pseudo-inverse.
+
+    d: (P,) sqrt of the diagonal (1 for fixed entries); scaled = J^T J / (d d^T), identity rows
+    and columns for fixed entries; inv its Hermitian pseudo-inverse. (J^T J)^-1 = inv / (d d^T).
+    The information on log v and on log-texture knots can differ by decades: inverting
+    the unit-diagonal form keeps the covariance accurate.
+    """
+    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), 1e-300, None)), 1.0)
+    both = free[:, None] & free[None, :]
+    scaled = jnp.where(both, jtj / (d[:, None] * d[None, :]), jnp.eye(jtj.shape[0], dtype=jtj.dtype))
+    return d, scaled, jnp.linalg.pinv(scaled, hermitian=True)
+
+
 def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: bool = True, n_prior: int = 0):
     """Fit statistics at ``theta``: (cov, chi2, n_data, dof, redchi, cond, decrement), as in ``LsqResult``.
 
@@ -70,13 +84,9 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
     chi2 = jnp.sum(jnp.square(r))
     dof = jnp.maximum(n_data - n_free, 1)
     redchi = chi2 / dof
-    jtj = jac_all.T @ jac_all
-    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), 1e-300, None)), 1.0)
-    scaled = jtj / (d[:, None] * d[None, :])
-    scaled = jnp.where(free[:, None] & free[None, :], scaled, jnp.eye(theta.shape[0]))
+    d, scaled, inv = equilibrated_inverse(jac_all.T @ jac_all, free)
     evals = jnp.linalg.eigvalsh(scaled)
     cond = evals[-1] / jnp.clip(evals[0], 1e-300, None)
-    inv = jnp.linalg.pinv(scaled, hermitian=True)
     cov = inv / (d[:, None] * d[None, :])
     factor = jnp.where(scale_covar, redchi, 1.0) * bin_factor
     cov = jnp.where(free[:, None] & free[None, :], cov * factor, 0.0)

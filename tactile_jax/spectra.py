@@ -323,13 +323,14 @@ def _detrend(seg: Array, kind: str) -> Array:
     return seg
 
 
+def _segment_products(spec: Array) -> tuple[Array, Array]:
+    """Per-segment |X|^2 of the four channels and conj(X1) X2 of the two pairs, from ``spec`` (..., 4, K, M)."""
+    return jnp.square(spec.real) + jnp.square(spec.imag), jnp.conj(spec[..., 0::2, :, :]) * spec[..., 1::2, :, :]
+
+
 def _pair_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
     """Average |X|^2 and conj(X1) X2 over axis -2 of ``spec`` (..., 4, K, M) and scale."""
-    power = jnp.mean(jnp.square(spec.real) + jnp.square(spec.imag), axis=-2) * scale
-    shallow = spec[..., 0::2, :, :]
-    deep = spec[..., 1::2, :, :]
-    cross = jnp.mean(jnp.conj(shallow) * deep, axis=-2) * scale
-    return power, cross
+    return tuple(jnp.mean(x, axis=-2) * scale for x in _segment_products(spec))
 
 
 def _leave_one_out_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
@@ -339,8 +340,7 @@ def _leave_one_out_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
     def drop_one(x):
         return jnp.moveaxis((jnp.sum(x, axis=-2, keepdims=True) - x) / (k - 1), -2, 0) * scale
 
-    cross = jnp.conj(spec[..., 0::2, :, :]) * spec[..., 1::2, :, :]
-    return drop_one(jnp.square(spec.real) + jnp.square(spec.imag)), drop_one(cross)
+    return tuple(drop_one(x) for x in _segment_products(spec))
 
 
 def _freq_axis(fs: Array, nfft: int, dtype) -> tuple[Array, Array]:
