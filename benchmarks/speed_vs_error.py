@@ -336,7 +336,7 @@ def run(args):
     # Cramer-Rao bound at the truth (Gaussian model) per recording from its per-bin errors, bins taken as
     # independent: across realisations the log ratio's errors correlate by -0.23..+0.25 between neighbours
     # (error_calibration.py). Also, for comparison, with the white-noise bin_factor (1.94: "_white") and
-    # with the neighbour correlation each recording's jackknife measures ("_jk"; biased high by 0.2-0.4)
+    # with the neighbour correlation each recording's jackknife measures ("_jk"; biased high by 0.1-0.4)
     for i, r in enumerate(rows):
         g = r["grid"]
         omega, _, err, mask = r["x"]

@@ -95,15 +95,16 @@ class Bound(NamedTuple):
     fisher: jax.Array
 
 
-def banded_correlation(rho, n: int) -> np.ndarray:
-    """(n, n) Toeplitz correlation matrix of bins with correlations ``rho`` (lags 1, 2, ...).
+def banded_correlation(rho, positions) -> np.ndarray:
+    """Correlation matrix (n, n) of the bins at integer ``positions`` (n,) with correlations ``rho``
+    at lags 1, 2, ... bins (0 beyond): a gap in the band leaves its neighbours' lags as they are.
 
     Made positive definite if the measured ``rho`` are not (eigenvalues floored at 0.05).
     """
-    c = np.eye(n)
-    for lag, r in enumerate(np.asarray(rho, float), start=1):
-        if lag < n:
-            c += r * (np.eye(n, k=lag) + np.eye(n, k=-lag))
+    rho = np.concatenate([[1.0], np.asarray(rho, float)])
+    pos = np.asarray(positions, int)
+    lag = np.abs(pos[:, None] - pos[None, :])
+    c = np.where(lag < rho.size, rho[np.minimum(lag, rho.size - 1)], 0.0)
     w, v = np.linalg.eigh(c)
     if w[0] < 0.05:
         c = (v * np.maximum(w, 0.05)) @ v.T
@@ -137,13 +138,11 @@ def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fi
     if bin_corr is None:
         fisher = fisher_information(_pair_residuals, theta, args, free, bin_factor=bin_factor)
     else:
-        # the used bins, in order, with their correlation; unused rows of J are zero
+        # correlated among the used bins only: the unused ones (zero rows of J) stay apart, so that
+        # F = J_used^T C_used^-1 J_used and not the inverse of a matrix that spans unobserved bins
         used = np.flatnonzero(np.asarray(mask))
-        c = banded_correlation(bin_corr, int(used[-1] - used[0] + 1) if used.size else 1)
         corr = np.eye(omega.shape[0])
-        if used.size:
-            sl = slice(int(used[0]), int(used[-1]) + 1)
-            corr[sl, sl] = c
+        corr[np.ix_(used, used)] = banded_correlation(bin_corr, used)
         fisher = fisher_information(_pair_residuals, theta, args, free, corr=jnp.asarray(corr))
     cov = bound_covariance(fisher, free)
     sd = jnp.sqrt(jnp.diag(cov))

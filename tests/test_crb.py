@@ -1,11 +1,13 @@
 """Cramer-Rao bounds (crb): analytic cases, Monte-Carlo efficiency of the exact-R fit, blind directions."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from tactile_jax.closed_form import slope_speed
 from tactile_jax.crb import banded_correlation, bound_covariance, fisher_information, pair_crb
+from tactile_jax.pair_fit import _residuals as _pair_residuals
 from tactile_jax.pair_fit import fit_pair
 from tactile_jax.r_curve import log_r_exact
 from tactile_jax.sensor import PAPER_SENSOR
@@ -47,6 +49,12 @@ def test_bin_factor_and_fixed_parameters():
     assert float(b1.log_cov[2, 2]) == 0.0                     # a known gain: no variance
 
 
+def _pair_args(err, mask):
+    """``pair_crb``'s residual arguments for a single-bin kernel."""
+    return (jnp.asarray(OMEGA), jnp.zeros(OMEGA.size), jnp.where(jnp.asarray(mask), jnp.asarray(err), 1.0),
+            jnp.asarray(mask), D1, D2, jnp.zeros(1), jnp.zeros(1))
+
+
 def test_measured_bin_correlation():
     err = np.full(OMEGA.size, 0.05)
     mask = (OMEGA > 2 * np.pi * 10) & (OMEGA < 2 * np.pi * 150)
@@ -61,8 +69,18 @@ def test_measured_bin_correlation():
     v1 = float(b1.speed_sd[0])
     assert float(plus.speed_sd[0]) == pytest.approx(v1 * np.sqrt(1.6), rel=0.1)
     assert float(minus.speed_sd[0]) == pytest.approx(v1 * np.sqrt(0.6), rel=0.1)
+    # a gap in the band: the bound uses the used bins' own correlation block, as if the gap were absent
+    gap = mask.copy()
+    gap[np.flatnonzero(mask)[10:14]] = False
+    g_corr = pair_crb(OMEGA, err, gap, D1, D2, 0.023, 2e-3, bin_corr=(0.3,))
+    used = np.flatnonzero(gap)
+    c = banded_correlation((0.3,), used)
+    assert c[9, 10] == 0.0 and c[8, 9] == pytest.approx(0.3)         # bins 4 apart across the gap: no correlation
+    jac = np.asarray(jax.jacfwd(_pair_residuals)(jnp.log(jnp.array([0.023, 2e-3, 1.0])), _pair_args(err, gap)))
+    jac = jac[used][:, :2]
+    np.testing.assert_allclose(np.asarray(g_corr.fisher)[:2, :2], jac.T @ np.linalg.solve(c, jac), rtol=1e-8)
     # an impossible measured correlation (not positive definite) still gives a finite bound
-    c = banded_correlation((0.9, 0.9), 20)
+    c = banded_correlation((0.9, 0.9), np.arange(20))
     assert np.linalg.eigvalsh(c)[0] > 0 and np.allclose(np.diag(c), 1.0)
     assert np.isfinite(float(pair_crb(OMEGA, err, mask, D1, D2, 0.023, 2e-3, bin_corr=(0.9, 0.9)).speed_sd[0]))
 
