@@ -12,6 +12,7 @@ truth. Prints a table, writes coverage.json and coverage.png.
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import json
 import platform
@@ -78,6 +79,16 @@ def _line(r):
             f"chi2r {f(r['redchi'], 1, 2)} {r['fit_s']:.1f}s")
 
 
+def _interval_hits(r, name):
+    """(truth in the 1-sigma interval, in the 2-sigma one): the profile interval if the fit gave one, else +/- err."""
+    true = r[name + "_true"]
+    if r.get(name + "_lo") is not None:
+        hi, hi2 = (np.inf if r[name + k] is None else r[name + k] for k in ("_hi", "_hi2"))
+        return r[name + "_lo"] <= true <= hi, r[name + "_lo2"] <= true <= hi2
+    dev = abs(r[name] - true)
+    return dev <= r[name + "_err"], dev <= 2 * r[name + "_err"]
+
+
 def summarize(rows):
     out = {}
     for name in ("vx", "vy", "a"):
@@ -87,6 +98,13 @@ def summarize(rows):
                      "cover_2sigma": float(np.mean(np.abs(pulls) <= 2)) if pulls.size else None,
                      "pull_mean": float(np.mean(pulls)) if pulls.size else None,
                      "pull_sd": float(np.std(pulls)) if pulls.size else None}
+    # the intervals the fit reports: the profile-likelihood ones of a minor component where given
+    for name in ("vx", "vy"):
+        hits = [_interval_hits(r, name) for r in rows if r[name] is not None and r[name + "_err"]]
+        n_prof = sum(r.get(name + "_lo") is not None for r in rows if r[name] is not None and r[name + "_err"])
+        out[name].update({"cover_1sigma_reported": float(np.mean([h[0] for h in hits])) if hits else None,
+                          "cover_2sigma_reported": float(np.mean([h[1] for h in hits])) if hits else None,
+                          "n_profile": n_prof})
     small = [r for r in rows if r["a_true"] <= 2.5e-3]
     for name in ("vx", "vy"):
         dev = np.array([abs(r[name] - r[name + "_true"]) / r["speed"] for r in small if r[name] is not None])
@@ -135,15 +153,19 @@ def main():
     p.add_argument("--seed", type=int, default=2026)
     p.add_argument("--out", default="benchmarks/out")
     p.add_argument("--skip", type=int, default=0, help="start at scene SKIP (resume a run)")
+    p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a FitOptions field to change, e.g. --option band_neighbours=3 (repeatable)")
     a = p.parse_args()
+    options = FitOptions(**{k: ast.literal_eval(v) for k, v in (o.split("=", 1) for o in a.option)})
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"# coverage study: {a.scenes} scenes, seed {a.seed}; {platform.machine()} {platform.processor()}, "
-          f"jax {jax.__version__}, numpy {np.__version__}")
-    rows = run(a.scenes, seed=a.seed, skip=a.skip)
+          f"jax {jax.__version__}, numpy {np.__version__}" + (f"; options {a.option}" if a.option else ""))
+    rows = run(a.scenes, options, seed=a.seed, skip=a.skip)
     summary = summarize(rows)
     print(json.dumps(summary, indent=1))
-    (out / "coverage.json").write_text(json.dumps({"summary": summary, "rows": rows}, indent=1, default=str))
+    (out / "coverage.json").write_text(json.dumps({"summary": summary, "options": a.option, "rows": rows}, indent=1,
+                                                  default=str))
     figure(rows, out / "coverage.png")
 
 

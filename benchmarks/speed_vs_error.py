@@ -52,7 +52,7 @@ import peer_lmfit  # noqa: E402
 from tactile_jax.closed_form import radius_from_offset, slope_speed  # noqa: E402
 from tactile_jax.crb import joint_crb, pair_crb  # noqa: E402
 from tactile_jax.jackknife import bin_correlation  # noqa: E402
-from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
+from tactile_jax.fit import _A_BOUNDS, FitOptions, fit_recording  # noqa: E402
 from tactile_jax.lsq import least_squares  # noqa: E402
 from tactile_jax.pair_fit import _residuals as exact_residuals  # noqa: E402
 from tactile_jax.pair_fit import fit_pair  # noqa: E402
@@ -153,6 +153,9 @@ def _lsq_pair(residuals, omega, lr, err, mask, d1, d2, kernel, start, solver="op
     return float(th[0]), float(th[1]), ok
 
 
+A_MAX = _A_BOUNDS[1]          # the joint fit's upper bound on a (m): beyond it a is "not measured"
+
+
 def _a_or_nan(a, a_err):
     """The radius, or NaN when the window is too weak to measure it (a_err > a / 2: the joint fit's rule)."""
     return a if (a_err is not None and np.isfinite(a_err) and a_err <= 0.5 * a) else np.nan
@@ -170,8 +173,9 @@ def pair_methods(x, d1, d2, kernel, bin_factor, slow=True):
     f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor)
     out["exact LS"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
     t0 = time.perf_counter()
-    r = _lsq_pair(rough_residuals, omega, lr, err, mask, d1, d2, kernel, start)
-    out["rough LS (Eq. 26)"] = (*r, time.perf_counter() - t0)
+    v_r, a_r, ok_r = _lsq_pair(rough_residuals, omega, lr, err, mask, d1, d2, kernel, start)
+    # the rough curve's offset 3 (d2^2 - d1^2) / (2 a^2) can fit to ~0: a runs off to metres, i.e. not measured
+    out["rough LS (Eq. 26)"] = (v_r, a_r if a_r <= A_MAX else np.nan, ok_r, time.perf_counter() - t0)
     if slow:
         t0 = time.perf_counter()
         f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, solver="jaxopt")

@@ -191,7 +191,7 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg,
         spec = _spectra(x, f, options, nperseg)
         ratio = amplitude_ratio(spec)
         band = usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err, fmin=options.fmin,
-                           fmax=options.fmax)
+                           fmax=options.fmax, neighbours=options.band_neighbours)
         shallow = spec.psd[0::2]
         band = _main_band(band & ~leakage_only(shallow, 3, options.leakage_db))
         d1, d2 = d[0], d[1]

@@ -51,6 +51,8 @@ _V_BOUNDS = (1e-6, 10.0)         # m/s
 #: well below the bound's threshold. Against 1e-8 everywhere, on 12 coverage scenes: the same values
 #: and errors to 3e-4 sigma, 1.6x less time (benchmarks/README.md, "Profile")
 _TOL = {"stage1": 1e-3, "full": 1e-6, "profile": 1e-4}
+#: a speed component below this fraction of the other gets a profile-likelihood interval (``FitResult.vx_lo``)
+MINOR_PROFILE = 0.3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,6 +67,10 @@ class FitOptions:
     n_knots: knots of the isotropic log texture spectrum; smoothness: the prior sd of
         its second differences between knots (smaller: smoother).
     min_snr, max_err, fmin, fmax: usable-band selection (``spectra.usable_band``; Hz).
+    band_neighbours: judge each bin by its 2 n neighbours' coherence, not its own
+        (``spectra.usable_band(neighbours=...)``: no selection bias at the band edge).
+    profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
+        profile-likelihood interval (``FitResult.vx_lo`` ...; about doubles such a fit's time).
     leakage_db: a bin whose shallow PSD lies this far below the highest within
         +/- 3 bins holds only spectral leakage (of a line texture) and is dropped.
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
@@ -87,6 +93,8 @@ class FitOptions:
     smoothness: float = 1.0
     min_snr: float = 1.0
     max_err: float = 0.5
+    band_neighbours: int = 3
+    profile_minor: bool = True
     fmin: float | None = None
     fmax: float | None = None
     leakage_db: float = 20.0
@@ -115,7 +123,11 @@ class FitResult:
     Speeds in m/s, lengths in m. ``None`` means not determined (see ``message``).
     ``a_lower`` is a 95 % lower bound on the contact radius when the window is
     too weak to measure it; ``vx_upper``/``vy_upper`` 95 % upper bounds when a
-    component is consistent with zero. ``error_scale``: the variance scale of the
+    component is consistent with zero. ``vx_lo``/``vx_hi`` (and ``vx_lo2``/``vx_hi2``)
+    the 1- (2-) sigma profile-likelihood interval of a minor speed component
+    (below ``MINOR_PROFILE`` of the major one), where the spectra depend on it
+    only quadratically and the Laplace error is too symmetric and too narrow
+    (likewise for vy). ``error_scale``: the variance scale of the
     Laplace covariance behind every error bar, ``error_method`` how it was found,
     ``jackknife`` its diagnostics (segments, per-parameter variance ratios).
     """
@@ -129,6 +141,14 @@ class FitResult:
     a_lower: float | None = None
     vx_upper: float | None = None
     vy_upper: float | None = None
+    vx_lo: float | None = None
+    vx_hi: float | None = None
+    vx_lo2: float | None = None
+    vx_hi2: float | None = None
+    vy_lo: float | None = None
+    vy_hi: float | None = None
+    vy_lo2: float | None = None
+    vy_hi2: float | None = None
     contact_depth: float | None = None
     contact_depth_err: float | None = None
     gain_ratio: float | None = None
@@ -172,7 +192,8 @@ class FitResult:
     def to_record(self) -> dict:
         """One flat row of the data contract (JSON/CSV ready: floats, bools, str, None)."""
         row = {name: _plain(getattr(self, name)) for name in RESULT_FIELDS}
-        for extra in ("a_lower", "vx_upper", "vy_upper", "gain_ratio_y", "gain_ratio_y_err", "redchi", "n_bins",
+        for extra in ("a_lower", "vx_upper", "vy_upper", "vx_lo", "vx_hi", "vx_lo2", "vx_hi2", "vy_lo", "vy_hi",
+                      "vy_lo2", "vy_hi2", "gain_ratio_y", "gain_ratio_y_err", "redchi", "n_bins",
                       "cond", "aic", "bic", "solver", "precision", "model_margin", "error_scale", "error_method"):
             row[extra] = _plain(getattr(self, extra))
         if self.posterior is not None:
@@ -272,7 +293,8 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, mi
     does not, as halving its averages cost it more than the bins gained).
     """
     ratio = amplitude_ratio(spec)
-    band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err))
+    band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err,
+                                  neighbours=options.band_neighbours))
     speeds, counts = [], []
     for p in range(2):
         if band[p].sum() >= 3:
@@ -445,7 +467,7 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
         return res
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err,
-                                  fmin=options.fmin, fmax=options.fmax))
+                                  fmin=options.fmin, fmax=options.fmax, neighbours=options.band_neighbours))
     psd = np.asarray(spec.psd)
     shallow = psd[[0, 2]]
     leak = np.asarray(leakage_only(shallow, drop_db=options.leakage_db))
@@ -741,6 +763,15 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
             setattr(res, name + "_upper", upper)
             notes.append(f"{name} is consistent with 0 at 2 sigma (95 % upper bound {_fmt_speed(upper)})" if upper
                          else f"{name} is not determined (consistent with 0)")
+    minor = int(vy < vx)
+    if options.profile_minor and free[0] and free[1] and getattr(res, ("vx", "vy")[minor] + "_upper") is None \
+            and min(vx, vy) < MINOR_PROFILE * max(vx, vy):
+        name = ("vx", "vy")[minor]
+        (lo, hi), (lo2, hi2) = _profile_interval(fit, data, free, options, minor, sd[minor], scale=scale)
+        for suffix, value in (("_lo", lo), ("_hi", hi), ("_lo2", lo2), ("_hi2", hi2)):
+            setattr(res, name + suffix, value)
+        notes.append(f"{name} is a minor component (the spectra depend on it quadratically): "
+                     f"profile-likelihood 1-sigma interval [{_fmt_speed(lo)}, {_fmt_speed(hi)}]")
     # contact radius
     a_err = float(a * sd[2])
     if window_weak or a_err > 0.5 * a or a > 0.5 * _A_BOUNDS[1]:
@@ -838,12 +869,70 @@ def _profile_bound(fit, data, free, options, i, start, *, direction, scale, delt
     return float(np.exp(x)) if direction < 0 else None
 
 
+def _profile_walk(fit, data, free, options, i, direction, step, c_stop, limit, n_max=16, growth=1.5):
+    """Step log-parameter i from the best fit (others refitted, warm-started) until chi2 rises by c_stop
+    or x passes ``limit``. Returns the points (x, chi2 - chi2_min), starting with (x_best, 0).
+    """
+    free_others = np.asarray(free).copy()
+    free_others[i] = False
+    n_prior = jm.n_prior_residuals(len(free_others))
+    chi0 = float(fit.chi2)
+    theta = np.asarray(fit.theta).copy()
+    x = float(theta[i])
+    points = [(x, 0.0)]
+    for _ in range(n_max):
+        x = x + direction * step
+        if direction * (x - limit) > 0:
+            break
+        theta[i] = x
+        f = least_squares(jm.residuals, jnp.asarray(theta), data, jnp.asarray(free_others), solver="optimistix",
+                          max_steps=256, n_prior=n_prior, rtol=_TOL["profile"], atol=_TOL["profile"])
+        c = float(f.chi2)
+        if not np.isfinite(c):
+            break
+        points.append((x, max(c - chi0, 0.0)))
+        theta = np.asarray(f.theta).copy()
+        if c - chi0 >= c_stop:
+            break
+        step *= growth
+    return points
+
+
+def _profile_interval(fit, data, free, options, i, sd_log, *, scale, n_sigma=(1.0, 2.0)):
+    """Profile-likelihood intervals of speed i (m/s), one (lo, hi) per ``n_sigma``.
+
+    The crossing of chi2_min + n^2 scale is interpolated linearly in
+    sqrt(chi2 - chi2_min), which is exact for a quadratic profile. A side that
+    never reaches it gives 0 (below) or None (above).
+    """
+    v_major = float(np.max(np.asarray(fit.theta)[:2]))
+    limits = {-1: v_major + np.log(1e-3), +1: v_major + np.log(2.0)}     # log m/s
+    c_stop = max(n_sigma) ** 2 * scale
+    step = 0.5 * max(float(sd_log), 0.02)
+    sides = {d: _profile_walk(fit, data, free, options, i, d, step, c_stop, limits[d]) for d in (-1, +1)}
+    out = []
+    for n in n_sigma:
+        target = n * np.sqrt(scale)
+        bounds = []
+        for d in (-1, +1):
+            pts = sides[d]
+            value = None
+            for (x0, c0), (x1, c1) in zip(pts[:-1], pts[1:]):
+                r0, r1 = np.sqrt(c0), np.sqrt(c1)
+                if r1 >= target:
+                    value = float(np.exp(x0 + (target - r0) / max(r1 - r0, 1e-12) * (x1 - x0)))
+                    break
+            bounds.append(0.0 if (value is None and d < 0) else value)
+        out.append(tuple(bounds))
+    return out
+
+
 def _log_phi_axis(th, data):
     """log Phi(k = omega / |v_p|) - model log S11_p(omega) for both pairs: (2, L)."""
     s11, _ = jm.log_spectra(th, data)
     v = jnp.exp(th[:2])
     k = data.omega[None, :] / v[:, None]
-    lphi = jnp.interp(jnp.log(k), data.log_k_knots, th[jm.N_FIXED_PARAMS:])
+    lphi = jm.log_phi_at(jnp.log(k), data.log_k_knots, th[jm.N_FIXED_PARAMS:])
     return lphi - s11
 
 

@@ -48,6 +48,22 @@ def test_oblique_slip_small_contact_recovered(oblique):
     assert res.error_scale == pytest.approx(max(jk["pooled"], res.redchi))
 
 
+def test_minor_component_gets_a_skewed_profile_interval():
+    # slip 8.5 deg off x: the spectra depend on vy only through vy^2 (the line k.v = omega tilts
+    # symmetrically), so vy's likelihood is skewed toward 0 and the Laplace error is too narrow
+    scene = _scene(0.04, 0.006, 1.2e-3, seed=21)
+    res = fit_recording(simulate(scene))
+    assert res.status == "ok", res.message
+    assert res.vx_lo is None and res.vy_upper is None
+    lo, hi, lo2, hi2 = res.vy_lo, res.vy_hi, res.vy_lo2, res.vy_hi2
+    assert 0 <= lo2 < lo < res.vy < hi < hi2
+    assert res.vy - lo > hi - res.vy                        # the long side points to 0
+    assert lo2 <= scene.velocity[1] <= hi2
+    row = res.to_record()
+    assert row["vy_lo"] == lo and row["vx_hi2"] is None
+    assert "profile-likelihood" in res.message
+
+
 def test_known_velocity_is_held_fixed():
     scene = _scene(0.047, 0.0, 2.2e-3, seed=5)
     res = fit_recording(simulate(scene), FitOptions(velocity=(0.047, 0.0)))

@@ -1,0 +1,35 @@
+"""The joint model's texture spectrum: log Phi between the knots."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.interpolate import CubicSpline
+
+from tactile_jax.joint_model import log_phi_at
+from tactile_jax.texture import RandomTexture
+
+
+@pytest.mark.parametrize("n, bc", [(12, "not-a-knot"), (3, "natural")])
+def test_log_phi_is_scipys_cubic_spline_through_the_knots_and_constant_outside(n, bc):
+    x = np.sort(np.random.default_rng(n).uniform(4.0, 11.0, n))
+    y = np.sin(x) + 0.1 * x ** 2
+    t = np.linspace(3.0, 12.0, 701)
+    got = np.asarray(log_phi_at(jnp.asarray(t), jnp.asarray(x), jnp.asarray(y)))
+    want = CubicSpline(x, y, bc_type=bc)(np.clip(t, x[0], x[-1]))
+    np.testing.assert_allclose(got, want, atol=1e-10)
+    grad = jax.grad(lambda v: log_phi_at(jnp.asarray(t), jnp.asarray(x), v).sum())(jnp.asarray(y))
+    assert np.all(np.isfinite(np.asarray(grad)))
+
+
+def test_the_spline_follows_the_simulators_texture_spectrum_better_than_straight_lines():
+    # the default knot layout spans ~3.4 decades with 12 knots (fit.py); the random texture's
+    # spectrum bends over one decade around k = 1 / correlation_length
+    knots = np.log(np.geomspace(20.0, 47000.0, 12))
+    t = np.log(np.geomspace(100.0, 20000.0, 400))          # where the bands of the coverage scenes lie
+    log_phi = lambda lk: np.log(RandomTexture().power_spectrum(np.exp(lk)))
+    spline = np.asarray(log_phi_at(jnp.asarray(t), jnp.asarray(knots), jnp.asarray(log_phi(knots))))
+    linear = np.interp(t, knots, log_phi(knots))
+    err_spline = np.abs(spline - log_phi(t)).max()
+    err_linear = np.abs(linear - log_phi(t)).max()
+    assert err_spline < 0.3 * err_linear, (err_spline, err_linear)
