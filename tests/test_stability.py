@@ -150,11 +150,11 @@ QUICK = ("slow_near_dc", "snr_0db", "deep_drowned")
 
 #: known confident wrong answers, kept visible (strict: a fix makes the test fail until this is removed)
 KNOWN_BAD = {
-    # slip along x: vy = 4.9 +/- 0.92 mm/s for a truth of 0 (5.3 sigma). The y pair hears the x slip
-    # through the contact window, wider in k than the probes here, and the model reads part of it as
-    # slip. With the white-noise bin factor (session 4) the same estimate was 4.5 sigma off; the
-    # recording's jackknife finds vy even steadier than its Laplace error says (variance ratio 0.18)
-    "contact_0.1mm": "vy biased at a 0.1 mm contact: 5.3 sigma from 0 (session 5)",
+    # contact_0.1mm left this list in session 6, but it is not fixed: slip along x gives
+    # vy = 11.9 +/- 3.8 mm/s for a truth of 0 (3.1 sigma, inside N_SIGMA), against 4.9 +/- 0.92
+    # (5.3 sigma) in session 5. The y pair hears the x slip through the contact window, wider in k
+    # than the probes here, and the model reads part of it as slip; the spline texture spectrum
+    # widened the error more than it moved the estimate
 }
 
 
