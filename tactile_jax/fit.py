@@ -70,7 +70,7 @@ class FitOptions:
     band_neighbours: judge each bin by its 2 n neighbours' coherence, not its own
         (``spectra.usable_band(neighbours=...)``: no selection bias at the band edge).
     profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
-        profile-likelihood interval (``FitResult.vx_lo`` ...; about doubles such a fit's time).
+        profile-likelihood interval (``FitResult.vx_lo`` ...; adds 2-5 s to such a fit).
     leakage_db: a bin whose shallow PSD lies this far below the highest within
         +/- 3 bins holds only spectral leakage (of a line texture) and is dropped.
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
