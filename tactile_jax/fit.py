@@ -757,17 +757,17 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
         setattr(res, name, float(v))
         setattr(res, name + "_err", err)
         if err > 0.5 * v or v < 1e-3 * max(vx, vy):          # 0 inside the 2-sigma interval: bound it
-            upper = _profile_bound(fit, data, free, options, i, theta[i], direction=+1, scale=scale)
+            upper = _profile_bound(fit, data, free, i, direction=+1, scale=scale)
             if upper is not None and upper > _V_BOUNDS[1]:
                 upper = None
             setattr(res, name + "_upper", upper)
             notes.append(f"{name} is consistent with 0 at 2 sigma (95 % upper bound {_fmt_speed(upper)})" if upper
                          else f"{name} is not determined (consistent with 0)")
     minor = int(vy < vx)
-    if options.profile_minor and free[0] and free[1] and getattr(res, ("vx", "vy")[minor] + "_upper") is None \
+    name = ("vx", "vy")[minor]
+    if options.profile_minor and free[0] and free[1] and getattr(res, name + "_upper") is None \
             and min(vx, vy) < MINOR_PROFILE * max(vx, vy):
-        name = ("vx", "vy")[minor]
-        (lo, hi), (lo2, hi2) = _profile_interval(fit, data, free, options, minor, sd[minor], scale=scale)
+        (lo, hi), (lo2, hi2) = _profile_interval(fit, data, free, minor, sd[minor], scale=scale)
         for suffix, value in (("_lo", lo), ("_hi", hi), ("_lo2", lo2), ("_hi2", hi2)):
             setattr(res, name + suffix, value)
         notes.append(f"{name} is a minor component (the spectra depend on it quadratically): "
@@ -775,7 +775,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
     # contact radius
     a_err = float(a * sd[2])
     if window_weak or a_err > 0.5 * a or a > 0.5 * _A_BOUNDS[1]:
-        lower = _profile_bound(fit, data, free, options, 2, theta[2], direction=-1, scale=scale)
+        lower = _profile_bound(fit, data, free, 2, direction=-1, scale=scale)
         res.a, res.a_err, res.a_lower = None, None, lower
         notes.append("the contact window is too weak to measure a: "
                      f"a > {1e3 * lower:.3g} mm (95 % lower bound)" if lower else
@@ -838,40 +838,11 @@ def _fmt_speed(v):
     return "n/a" if v is None else f"{100 * v:.3g} cm/s"
 
 
-def _profile_bound(fit, data, free, options, i, start, *, direction, scale, delta=2.71, n_max=24):
-    """One-sided 95 % profile-likelihood bound of parameter i (log space) from the best fit.
-
-    Steps log-parameter i away from the fit (direction -1: down, +1: up) with
-    the other free parameters refitted, until chi2 rises by ``delta * scale``;
-    returns exp of the crossing (interpolated), or the last value tried.
-    """
-    free_others = np.asarray(free).copy()
-    free_others[i] = False
-    n_prior = jm.n_prior_residuals(len(free_others))
-    chi0 = float(fit.chi2)
-    theta = np.asarray(fit.theta).copy()
-    prev_x, prev_c = start, chi0
-    step = 0.1
-    x = start
-    for _ in range(n_max):
-        x = x + direction * step
-        theta[i] = x
-        f = least_squares(jm.residuals, jnp.asarray(theta), data, jnp.asarray(free_others), solver="optimistix",
-                          max_steps=256, n_prior=n_prior, rtol=_TOL["profile"], atol=_TOL["profile"])
-        c = float(f.chi2)
-        if np.isfinite(c) and c - chi0 >= delta * scale:
-            frac = (delta * scale - (prev_c - chi0)) / max(c - prev_c, 1e-12)
-            return float(np.exp(prev_x + frac * (x - prev_x)))
-        if np.isfinite(c):
-            theta = np.asarray(f.theta).copy()
-            prev_x, prev_c = x, c
-        step *= 1.5
-    return float(np.exp(x)) if direction < 0 else None
-
-
-def _profile_walk(fit, data, free, options, i, direction, step, c_stop, limit, n_max=16, growth=1.5):
-    """Step log-parameter i from the best fit (others refitted, warm-started) until chi2 rises by c_stop
-    or x passes ``limit``. Returns the points (x, chi2 - chi2_min), starting with (x_best, 0).
+def _profile_walk(fit, data, free, i, direction, step, c_stop, *, limit=None, n_max=24, growth=1.5):
+    """Step log-parameter i from the best fit (direction -1: down, +1: up), the other free parameters
+    refitted (warm-started), until chi2 rises by ``c_stop`` or x passes ``limit``; the step grows by
+    ``growth`` each time. Returns the finite points (x, chi2 - chi2_min), starting with (x_best, 0), and
+    the last x tried.
     """
     free_others = np.asarray(free).copy()
     free_others[i] = False
@@ -881,24 +852,39 @@ def _profile_walk(fit, data, free, options, i, direction, step, c_stop, limit, n
     x = float(theta[i])
     points = [(x, 0.0)]
     for _ in range(n_max):
-        x = x + direction * step
-        if direction * (x - limit) > 0:
+        if limit is not None and direction * (x + direction * step - limit) > 0:
             break
+        x = x + direction * step
+        step *= growth
         theta[i] = x
         f = least_squares(jm.residuals, jnp.asarray(theta), data, jnp.asarray(free_others), solver="optimistix",
                           max_steps=256, n_prior=n_prior, rtol=_TOL["profile"], atol=_TOL["profile"])
         c = float(f.chi2)
         if not np.isfinite(c):
-            break
-        points.append((x, max(c - chi0, 0.0)))
+            continue
+        points.append((x, c - chi0))
         theta = np.asarray(f.theta).copy()
         if c - chi0 >= c_stop:
             break
-        step *= growth
-    return points
+    return points, x
 
 
-def _profile_interval(fit, data, free, options, i, sd_log, *, scale, n_sigma=(1.0, 2.0)):
+def _profile_bound(fit, data, free, i, *, direction, scale, delta=2.71, n_max=24):
+    """One-sided 95 % profile-likelihood bound of parameter i (log space) from the best fit.
+
+    Steps log-parameter i away from the fit (direction -1: down, +1: up) with
+    the other free parameters refitted, until chi2 rises by ``delta * scale``;
+    returns exp of the crossing (interpolated), or the last value tried.
+    """
+    points, x_last = _profile_walk(fit, data, free, i, direction, 0.1, delta * scale, n_max=n_max)
+    if len(points) > 1 and points[-1][1] >= delta * scale:
+        (x0, c0), (x1, c1) = points[-2], points[-1]
+        frac = (delta * scale - c0) / max(c1 - c0, 1e-12)
+        return float(np.exp(x0 + frac * (x1 - x0)))
+    return float(np.exp(x_last)) if direction < 0 else None
+
+
+def _profile_interval(fit, data, free, i, sd_log, *, scale, n_sigma=(1.0, 2.0)):
     """Profile-likelihood intervals of speed i (m/s), one (lo, hi) per ``n_sigma``.
 
     The crossing of chi2_min + n^2 scale is interpolated linearly in
@@ -909,16 +895,15 @@ def _profile_interval(fit, data, free, options, i, sd_log, *, scale, n_sigma=(1.
     limits = {-1: v_major + np.log(1e-3), +1: v_major + np.log(2.0)}     # log m/s
     c_stop = max(n_sigma) ** 2 * scale
     step = 0.5 * max(float(sd_log), 0.02)
-    sides = {d: _profile_walk(fit, data, free, options, i, d, step, c_stop, limits[d]) for d in (-1, +1)}
+    sides = {d: _profile_walk(fit, data, free, i, d, step, c_stop, limit=limits[d], n_max=16)[0] for d in (-1, +1)}
     out = []
     for n in n_sigma:
         target = n * np.sqrt(scale)
         bounds = []
         for d in (-1, +1):
-            pts = sides[d]
             value = None
-            for (x0, c0), (x1, c1) in zip(pts[:-1], pts[1:]):
-                r0, r1 = np.sqrt(c0), np.sqrt(c1)
+            for (x0, c0), (x1, c1) in zip(sides[d][:-1], sides[d][1:]):
+                r0, r1 = np.sqrt(max(c0, 0.0)), np.sqrt(max(c1, 0.0))
                 if r1 >= target:
                     value = float(np.exp(x0 + (target - r0) / max(r1 - r0, 1e-12) * (x1 - x0)))
                     break
