@@ -15,6 +15,7 @@ import argparse
 import ast
 import dataclasses
 import json
+import math
 import platform
 import time
 from pathlib import Path
@@ -31,7 +32,8 @@ from tactile_jax.scene import Scene, simulate  # noqa: E402
 from tactile_jax.texture import RandomTexture  # noqa: E402
 
 
-def scenes(n: int, seed: int = 2026, large_fraction: float = 0.15):
+def scenes(n: int, seed: int = 2026, large_fraction: float = 0.15, snr_db: float | None = None):
+    """Seeded scenes; ``snr_db`` fixes the SNR (the draw is still made, so the other draws do not move)."""
     rng = np.random.default_rng(seed)
     for i in range(n):
         speed = float(np.exp(rng.uniform(np.log(0.01), np.log(0.08))))
@@ -39,13 +41,16 @@ def scenes(n: int, seed: int = 2026, large_fraction: float = 0.15):
         large = rng.uniform() < large_fraction
         a = float(rng.uniform(5e-3, 8e-3)) if large else float(np.exp(rng.uniform(np.log(0.8e-3), np.log(2.5e-3))))
         snr = float(rng.uniform(30, 60))
+        if snr_db is not None:
+            snr = float(snr_db)        # the draw above is still made, so the other draws do not move
         yield i, Scene(texture=RandomTexture(), velocity=(speed * np.cos(angle), speed * np.sin(angle)),
                        contact_radius=a, snr_db=snr, duration=16.0, fs=1000.0, seed=int(rng.integers(1 << 30)))
 
 
-def run(n: int, options: FitOptions = FitOptions(), seed: int = 2026, verbose: bool = True, skip: int = 0):
+def run(n: int, options: FitOptions = FitOptions(), seed: int = 2026, verbose: bool = True, skip: int = 0,
+        large_fraction: float = 0.15, snr_db: float | None = None):
     rows = []
-    for i, scene in scenes(n, seed):
+    for i, scene in scenes(n, seed, large_fraction, snr_db):
         if i < skip:
             continue
         t0 = time.perf_counter()
@@ -89,6 +94,32 @@ def _interval_hits(r, name):
     return dev <= r[name + "_err"], dev <= 2 * r[name + "_err"]
 
 
+def _target(small):
+    """Issue 3's accuracy target on the small contacts, and what the stated errors allow.
+
+    ``both_speeds_2pct``: share of fits with |vx| and |vy| each within 2 % of |v|;
+    ``a_5pct``: a within 5 %. ``*_expected``: the same shares for an unbiased
+    estimator whose errors are the fits' own one-sigma errors (Gaussian), the
+    mean over scenes of P(|N(0, sx)| < 0.02 |v|) P(|N(0, sy)| < 0.02 |v|): what an
+    efficient estimator at the information this model uses would reach.
+    """
+    ok = [r for r in small if r["vx"] is not None and r["vy"] is not None and r["vx_err"] and r["vy_err"]]
+    if not ok:
+        return {"n": 0}
+
+    def p_within(err, tol):
+        return math.erf(tol / (err * math.sqrt(2.0)))
+
+    hit = [abs(r["vx"] - r["vx_true"]) <= 0.02 * r["speed"] and abs(r["vy"] - r["vy_true"]) <= 0.02 * r["speed"]
+           for r in ok]
+    expected = [p_within(r["vx_err"], 0.02 * r["speed"]) * p_within(r["vy_err"], 0.02 * r["speed"]) for r in ok]
+    with_a = [r for r in ok if r["a"] is not None and r["a_err"]]
+    return {"n": len(ok), "both_speeds_2pct": float(np.mean(hit)), "both_speeds_2pct_expected": float(np.mean(expected)),
+            "n_a": len(with_a),
+            "a_5pct": float(np.mean([abs(r["a"] - r["a_true"]) <= 0.05 * r["a_true"] for r in with_a])) if with_a else None,
+            "a_5pct_expected": float(np.mean([p_within(r["a_err"], 0.05 * r["a_true"]) for r in with_a])) if with_a else None}
+
+
 def summarize(rows):
     out = {}
     for name in ("vx", "vy", "a"):
@@ -113,6 +144,7 @@ def summarize(rows):
     dev_a = np.array([abs(r["a"] - r["a_true"]) / r["a_true"] for r in small if r["a"] is not None])
     out["a_rel_dev_p95"] = float(np.percentile(dev_a, 95)) if dev_a.size else None
     out["a_rel_dev_max"] = float(dev_a.max()) if dev_a.size else None
+    out["target"] = _target(small)
     large = [r for r in rows if r["a_true"] > 2.5e-3]
     out["large_a_reported_as_bound"] = sum(r["a"] is None for r in large)
     out["large_n"] = len(large)
@@ -155,13 +187,16 @@ def main():
     p.add_argument("--skip", type=int, default=0, help="start at scene SKIP (resume a run)")
     p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                    help="a FitOptions field to change, e.g. --option band_neighbours=3 (repeatable)")
+    p.add_argument("--snr", type=float, default=None, help="fix the SNR (dB) instead of drawing it in 30-60")
+    p.add_argument("--large-fraction", type=float, default=0.15, help="share of 5-8 mm contacts (default 0.15)")
     a = p.parse_args()
     options = FitOptions(**{k: ast.literal_eval(v) for k, v in (o.split("=", 1) for o in a.option)})
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"# coverage study: {a.scenes} scenes, seed {a.seed}; {platform.machine()} {platform.processor()}, "
+    print(f"# coverage study: {a.scenes} scenes, seed {a.seed}, SNR {a.snr or '30-60'} dB, "
+          f"large contacts {a.large_fraction:.0%}; {platform.machine()} {platform.processor()}, "
           f"jax {jax.__version__}, numpy {np.__version__}" + (f"; options {a.option}" if a.option else ""))
-    rows = run(a.scenes, options, seed=a.seed, skip=a.skip)
+    rows = run(a.scenes, options, seed=a.seed, skip=a.skip, large_fraction=a.large_fraction, snr_db=a.snr)
     summary = summarize(rows)
     print(json.dumps(summary, indent=1))
     (out / "coverage.json").write_text(json.dumps({"summary": summary, "options": a.option, "rows": rows}, indent=1,

@@ -7,6 +7,8 @@ speeds and contact radii. Each recording's x pair goes through:
   slope        Eq. 6 line (closed_form.slope_speed); a from its Eq. 26 offset
   rough LS     least squares of the rough R (Eq. 26, r_curve.log_r_rough), written here
   exact LS     pair_fit.fit_pair: exact R (Eq. 23), optimistix LM        <- the time reference
+               (its spectral-window average weighted by the prewhitened shallow spectrum;
+               "exact LS flat window" weights it as if that spectrum were flat, as before session 7)
   exact LS jaxopt / exact LS float32 (x64 off, in a subprocess)
   hertz LS     least squares of the Hertz-window R (r_curve.log_r_hertz), written here
   lmfit peer   benchmarks/peer_lmfit.py: scipy Welch + numpy exact R + lmfit leastsq (+ lmfit emcee)
@@ -55,11 +57,11 @@ from tactile_jax.jackknife import bin_correlation  # noqa: E402
 from tactile_jax.fit import _A_BOUNDS, FitOptions, fit_recording  # noqa: E402
 from tactile_jax.lsq import least_squares  # noqa: E402
 from tactile_jax.pair_fit import _residuals as exact_residuals  # noqa: E402
-from tactile_jax.pair_fit import fit_pair  # noqa: E402
+from tactile_jax.pair_fit import fit_pair, kernel_log_weights  # noqa: E402
 from tactile_jax.r_curve import log_r_hertz, log_r_rough  # noqa: E402
 from tactile_jax.recording import Recording  # noqa: E402
 from tactile_jax.scene import Scene, simulate  # noqa: E402
-from tactile_jax.spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band  # noqa: E402
+from tactile_jax.spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band, whitened_psd  # noqa: E402
 from tactile_jax.texture import RandomTexture  # noqa: E402
 
 PREWHITEN = 8
@@ -74,7 +76,7 @@ def _kernel_model(log_r_fn, theta, omega, d1, d2, offsets, log_w):
     d_omega = omega[1] - omega[0]
     om = jnp.abs(omega[:, None] + offsets[None, :] * d_omega)
     log_r = log_r_fn(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
-    return logsumexp(log_r + log_w[None, :], axis=-1) + log_g
+    return logsumexp(log_r + log_w, axis=-1) - logsumexp(log_w + jnp.zeros_like(log_r), axis=-1) + log_g
 
 
 def _weighted(model, args):
@@ -123,6 +125,11 @@ def pair_data(signals, fs, nperseg=None):
     return spec, ratio, band
 
 
+def shallow_seen(spec):
+    """The x pair's shallow spectrum as the Welch average saw it (``fit_pair(spectrum=...)``)."""
+    return np.asarray(whitened_psd(spec)[..., 0, :])
+
+
 def resolution_nperseg(signals, fs, depths):
     """The Welch segment for a pair fit (``fit._resolution_nperseg`` with the pair fits' bin count)."""
     from tactile_jax.fit import MIN_PAIR_BAND_BINS, _resolution_nperseg
@@ -141,11 +148,10 @@ def _timed(fn, *a, **kw):
 # ----------------------------------------------------------------------------- estimators (one recording)
 
 
-def _lsq_pair(residuals, omega, lr, err, mask, d1, d2, kernel, start, solver="optimistix"):
-    offsets, weights = (np.asarray(k, float) for k in kernel)
-    keep = weights > 0
+def _lsq_pair(residuals, omega, lr, err, mask, d1, d2, kernel, start, spectrum, solver="optimistix"):
+    offsets, log_w = kernel_log_weights(omega, kernel, spectrum)
     args = (jnp.asarray(omega), jnp.asarray(np.where(mask, lr, 0.0)), jnp.asarray(np.where(mask, err, 1.0)),
-            jnp.asarray(mask), d1, d2, jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
+            jnp.asarray(mask), d1, d2, jnp.asarray(offsets), jnp.asarray(log_w))
     theta0 = jnp.log(jnp.asarray([start[0], start[1], 1.0]))
     res = least_squares(residuals, theta0, args, jnp.array([True, True, False]), solver=solver)
     th = np.exp(np.asarray(res.theta))
@@ -161,8 +167,11 @@ def _a_or_nan(a, a_err):
     return a if (a_err is not None and np.isfinite(a_err) and a_err <= 0.5 * a) else np.nan
 
 
-def pair_methods(x, d1, d2, kernel, bin_factor, slow=True):
-    """All single-pair estimators on one x pair: {method: (v, a, ok, seconds)}; ``slow``: also jaxopt and Hertz."""
+def pair_methods(x, d1, d2, kernel, bin_factor, spectrum, slow=True):
+    """All single-pair estimators on one x pair: {method: (v, a, ok, seconds)}; ``slow``: also jaxopt and Hertz.
+
+    spectrum: the shallow spectrum that weights the spectral window (``shallow_seen``).
+    """
     omega, lr, err, mask = x
     out = {}
     line, t = _timed(slope_speed, omega, lr, err, mask, d1, d2, bin_factor)
@@ -170,18 +179,22 @@ def pair_methods(x, d1, d2, kernel, bin_factor, slow=True):
     out["slope (Eq. 6)"] = (float(line.speed), a_line, bool(line.ok), t)
     start = (float(line.speed) if bool(line.ok) else 0.01, a_line if np.isfinite(a_line) else 2e-3)
     t0 = time.perf_counter()
-    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor)
+    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, spectrum=spectrum)
     out["exact LS"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
     t0 = time.perf_counter()
-    v_r, a_r, ok_r = _lsq_pair(rough_residuals, omega, lr, err, mask, d1, d2, kernel, start)
+    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor)
+    out["exact LS flat window"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    v_r, a_r, ok_r = _lsq_pair(rough_residuals, omega, lr, err, mask, d1, d2, kernel, start, spectrum)
     # the rough curve's offset 3 (d2^2 - d1^2) / (2 a^2) can fit to ~0: a runs off to metres, i.e. not measured
     out["rough LS (Eq. 26)"] = (v_r, a_r if a_r <= A_MAX else np.nan, ok_r, time.perf_counter() - t0)
     if slow:
         t0 = time.perf_counter()
-        f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, solver="jaxopt")
+        f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, spectrum=spectrum,
+                     solver="jaxopt")
         out["exact LS jaxopt"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
         t0 = time.perf_counter()
-        r = _lsq_pair(hertz_residuals, omega, lr, err, mask, d1, d2, kernel, start)
+        r = _lsq_pair(hertz_residuals, omega, lr, err, mask, d1, d2, kernel, start, spectrum)
         out["hertz LS"] = (*r, time.perf_counter() - t0)
     return out
 
@@ -201,7 +214,7 @@ def float32_worker(npz_path, out_path):
         x = (np.asarray(ratio.omega), np.asarray(ratio.log_ratio[0]), np.asarray(ratio.log_ratio_err[0]),
              np.asarray(band[0]))
         t0 = time.perf_counter()
-        f = fit_pair(*x, d1, d2, kernel=spec.kernel, bin_factor=spec.bin_factor)
+        f = fit_pair(*x, d1, d2, kernel=spec.kernel, bin_factor=spec.bin_factor, spectrum=shallow_seen(spec))
         row = {"i": i, "exact LS float32": [f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0]}
         if i in joint_idx:
             rec = Recording(signals[i], fs, depths)
@@ -262,6 +275,7 @@ def run(args):
         x = (np.asarray(ratio.omega), np.asarray(ratio.log_ratio[0]), np.asarray(ratio.log_ratio_err[0]),
              np.asarray(band[0]))
         rows.append({"grid": g, "x": x, "kernel": spec.kernel, "bin_factor": float(spec.bin_factor), "est": {},
+                     "spectrum": shallow_seen(spec),
                      "nperseg": npersegs[i],
                      "slow": g["window"] == "hertz"})
     batch_spectra_s = 0.0
@@ -277,11 +291,11 @@ def run(args):
         if r["nperseg"] not in seen:                                        # compile for this shape
             seen.add(r["nperseg"])
             slow = any(q["slow"] and q["nperseg"] == r["nperseg"] for q in rows)
-            first = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], slow=slow)
-            done = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], slow=slow)
+            first = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], slow=slow)
+            done = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], slow=slow)
             for name, val in first.items():
                 compile_s[f"{name} (nperseg {r['nperseg']})"] = val[3] - done[name][3]
-        r["est"].update(pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], slow=r["slow"]))
+        r["est"].update(pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], slow=r["slow"]))
     print("single-pair methods done", flush=True)
 
     # lmfit peer (its own spectra: scipy), and lmfit emcee on a subset
@@ -350,7 +364,7 @@ def run(args):
         r["bin_corr"] = [float(x) for x in rho]
         for suffix, kw in (("", {}), ("_white", {"bin_factor": r["bin_factor"]}),
                            ("_jk", {"bin_corr": np.nan_to_num(rho)})):
-            b = pair_crb(omega, err, mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"], **kw)
+            b = pair_crb(omega, err, mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"], spectrum=r["spectrum"], **kw)
             r["crb_v" + suffix], r["crb_a" + suffix] = float(b.speed_sd[0]), float(b.a_sd)
     rho = np.array([r["bin_corr"] for r in rows], float)
     print("log-ratio error correlation between bins (jackknife), median [p10, p90]: "
@@ -368,11 +382,12 @@ def run(args):
 
 
 def _batched_exact(rows, d1, d2):
-    offsets, weights = (np.asarray(k, float) for k in rows[0]["kernel"])
-    keep = weights > 0
+    weighted = [kernel_log_weights(r["x"][0], r["kernel"], r["spectrum"]) for r in rows]
+    offsets = jnp.asarray(weighted[0][0])
+    log_w = jnp.asarray(np.stack([w[1] for w in weighted]))
 
-    def one(theta0, y, err, mask, omega):
-        args = (omega, y, err, mask, d1, d2, jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
+    def one(theta0, y, err, mask, omega, lw):
+        args = (omega, y, err, mask, d1, d2, offsets, lw)
         return least_squares(exact_residuals, theta0, args, jnp.array([True, True, False]))
 
     batched = jax.jit(jax.vmap(one))
@@ -384,8 +399,8 @@ def _batched_exact(rows, d1, d2):
     starts = np.array([[r["est"]["slope (Eq. 6)"][0], r["est"]["slope (Eq. 6)"][1], 1.0] for r in rows])
     starts = np.where(np.isfinite(starts) & (starts > 0), starts, [[0.01, 2e-3, 1.0]])
     theta0 = jnp.log(jnp.asarray(starts))
-    _timed(batched, theta0, y, err, mask, omega)                            # compile
-    res, dt = _timed(batched, theta0, y, err, mask, omega)
+    _timed(batched, theta0, y, err, mask, omega, log_w)                     # compile
+    res, dt = _timed(batched, theta0, y, err, mask, omega, log_w)
     sd_log_a = np.sqrt(np.clip(np.asarray(res.cov)[:, 1, 1] * np.maximum(1.0, 1.0 / np.asarray(res.redchi))
                                * rows[0]["bin_factor"], 0, None))
     for r, th, ok, sa in zip(rows, np.exp(np.asarray(res.theta)), np.asarray(res.converged), sd_log_a):
@@ -460,8 +475,8 @@ def summarise(rows, timing, snr_groups):
     return out
 
 
-METHOD_ORDER = ("slope (Eq. 6)", "rough LS (Eq. 26)", "exact LS", "exact LS batched", "exact LS jaxopt",
-                "exact LS float32", "hertz LS", "lmfit peer", "lmfit emcee mean", "joint 2-D", "joint 2-D jaxopt",
+METHOD_ORDER = ("slope (Eq. 6)", "rough LS (Eq. 26)", "exact LS", "exact LS flat window", "exact LS batched",
+                "exact LS jaxopt", "exact LS float32", "hertz LS", "lmfit peer", "lmfit emcee mean", "joint 2-D", "joint 2-D jaxopt",
                 "joint 2-D float32", "joint emcee mean")
 
 

@@ -146,7 +146,8 @@ class BiasRow(NamedTuple):
 @dataclasses.dataclass(frozen=True)
 class RatioData:
     """One pair's measured log amplitude ratio: omega (M,) rad/s, log_ratio, err (M,), mask (M,) bool;
-    kernel (the spectral window), bin_factor, and the truth (speed m/s, a m)."""
+    kernel (the spectral window), bin_factor, the truth (speed m/s, a m) and spectrum (M,), the
+    prewhitened shallow spectrum that weights the window (None: flat; ``pair_fit.kernel_log_weights``)."""
 
     omega: np.ndarray
     log_ratio: np.ndarray
@@ -156,6 +157,7 @@ class RatioData:
     a: float
     kernel: tuple = ((0.0,), (1.0,))
     bin_factor: float = 1.0
+    spectrum: np.ndarray | None = None
 
 
 def synthetic_ratio(speed, a, *, truth: str = "exact", depths=(_D1, _D2), fs: float = 1000.0, nperseg: int = 512,
@@ -198,7 +200,7 @@ def simulator_ratio(speed, a, *, window: str = "gaussian", duration: float = 8.0
     as the fit pipeline uses them.
     """
     from .scene import Scene, simulate
-    from .spectra import amplitude_ratio, estimate_spectra, usable_band
+    from .spectra import amplitude_ratio, estimate_spectra, usable_band, whitened_psd
 
     rec = simulate(Scene(velocity=(speed, 0.0), contact_radius=a, window=window, duration=duration, snr_db=snr_db,
                          seed=seed))
@@ -206,7 +208,8 @@ def simulator_ratio(speed, a, *, window: str = "gaussian", duration: float = 8.0
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio))[0]
     return RatioData(np.asarray(ratio.omega), np.asarray(ratio.log_ratio[0]), np.asarray(ratio.log_ratio_err[0]),
-                     band, float(speed), float(a), spec.kernel, float(spec.bin_factor))
+                     band, float(speed), float(a), spec.kernel, float(spec.bin_factor),
+                     np.asarray(whitened_psd(spec)[0]))
 
 
 def _valid_band(data: RatioData, tol: float = 0.05):
@@ -222,7 +225,7 @@ def _one_fit(data: RatioData, curve: str):
         if data.mask.sum() < 4:
             nan = float("nan")
             return PairFitNaN(nan, nan, nan, nan, nan, None, nan, int(data.mask.sum()), False, nan), 0.0
-    kw = dict(kernel=data.kernel, bin_factor=data.bin_factor)
+    kw = dict(kernel=data.kernel, bin_factor=data.bin_factor, spectrum=data.spectrum)
     t = time.perf_counter()
     if curve == "hertz":
         # the Hertz curve's LM needs a start near the basin: the Gaussian fit's (its time counts)

@@ -502,7 +502,10 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
     lr = np.where(mask_h, ratio_np[0][:, idx], 0.0)
     lr_err = np.where(mask_h, ratio_np[1][:, idx], 1.0)
 
-    # ---- starting values: each pair alone (closed form, then exact R curve)
+    # ---- starting values: each pair alone (closed form, then exact R curve). The flat window here:
+    # with the spectrum-weighted one (``fit_pair(spectrum=)``) an 8 s, 30 dB, 1.5 cm/s slip along x
+    # started the joint fit into a wrong basin of LOWER chi-square (vx 0.66 cm/s, vy 1.9 +/- 0.5 cm/s
+    # for a truth of 0, status ok) where these starts end in poor_fit: kept until that is understood
     gains = _gains(options)
     starts = []
     for p in range(2):

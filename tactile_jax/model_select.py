@@ -238,7 +238,7 @@ def fit_hertz(spec, depths, options, curvature_radius=None):
     """
     from .fit import FitResult, _contact_depth, _gains
     from .pair_fit import fit_pair
-    from .spectra import amplitude_ratio, usable_band
+    from .spectra import amplitude_ratio, usable_band, whitened_psd
 
     d1, d2 = (float(v) for v in depths)
     ratio = amplitude_ratio(spec)
@@ -257,7 +257,7 @@ def fit_hertz(spec, depths, options, curvature_radius=None):
         if band[p].sum() < 5:
             continue
         kw = dict(gain_ratio=gains[p], fit_gain=options.fit_gain, kernel=spec.kernel, bin_factor=spec.bin_factor,
-                  solver=options.solver)
+                  spectrum=np.asarray(whitened_psd(spec)[2 * p]), solver=options.solver)
         if options.velocity is not None:
             kw["speed0"] = max(options.velocity[p], 1e-4)
         g = fit_pair(omega, lr[p], err[p], band[p], d1, d2, curve="exact", **kw)

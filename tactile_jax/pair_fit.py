@@ -18,7 +18,7 @@ from .lsq import least_squares
 from .r_curve import log_r_exact, log_r_hertz, log_r_rough
 from jax.scipy.special import logsumexp
 
-__all__ = ["PairFit", "fit_pair", "CURVES"]
+__all__ = ["PairFit", "fit_pair", "kernel_log_weights", "CURVES"]
 
 #: R curves a pair can be fitted with: Gaussian exact (Eq. 23), the rough Eq. 26, Hertz (Eq. 12, 1-D texture)
 CURVES = ("exact", "rough", "hertz")
@@ -42,12 +42,13 @@ class PairFit(NamedTuple):
 def _pair_residuals(log_r_fn, theta, args):
     omega, y, err, mask, d1, d2, offsets, log_w = args
     log_v, log_a, log_g = theta[0], theta[1], theta[2]
-    # the expected estimate at a bin is the spectral-window average of R around it
-    # (the prewhitened shallow spectrum is flat, so R is averaged with the window's weights)
+    # the expected H1 estimate at a bin is the average of R over the spectral window around it,
+    # weighted by the (prewhitened) shallow spectrum there: log_w is (J,) for a flat one, or
+    # (M, J) with the spectrum in it (``kernel_log_weights``)
     d_omega = omega[1] - omega[0]
     om = jnp.abs(omega[:, None] + offsets[None, :] * d_omega)
     log_r = log_r_fn(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
-    model = logsumexp(log_r + log_w[None, :], axis=-1) + log_g
+    model = logsumexp(log_r + log_w, axis=-1) - logsumexp(log_w + jnp.zeros_like(log_r), axis=-1) + log_g
     safe_err = jnp.where(mask, err, 1.0)
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
@@ -72,11 +73,39 @@ def _residuals_hertz(theta, args):
     return _pair_residuals(_log_r_hertz_1d, theta, args)
 
 
+def kernel_log_weights(omega, kernel, spectrum=None):
+    """(offsets, log weights) of the spectral window each bin's H1 ratio averages R over.
+
+    omega: (M,) bin frequencies, rad/s (uniform). kernel: ``(offsets in bins,
+    weights)`` (``CrossSpectra.kernel``). spectrum: (M,) the shallow probe's power
+    spectrum as the estimator averaged it (``spectra.whitened_psd``), or None for
+    a flat one. The ratio of window averages sum w S R / sum w S is R averaged
+    with weights w S: where S is steep on the scale of the window (a slow slip's
+    band near DC), a flat S biases the model by up to ~0.03 in log ratio.
+    Returns offsets (J,) of the non-zero weights and log weights, (J,) without a
+    spectrum, (M, J) with one (S interpolated log-linearly in |omega| between bins,
+    the DC bin, notched by detrending, left out).
+    """
+    offsets, weights = (np.asarray(k, float) for k in kernel)
+    keep = weights > 0
+    offsets, log_w = offsets[keep], np.log(weights[keep])
+    if spectrum is None:
+        return offsets, log_w
+    omega = np.asarray(omega, float)
+    spectrum = np.asarray(spectrum, float)
+    at = np.abs(omega[:, None] + offsets[None, :] * (omega[1] - omega[0]))
+    ok = (omega > 0) & np.isfinite(spectrum) & (spectrum > 0)
+    if ok.sum() < 2:
+        return offsets, log_w
+    log_s = np.interp(at, omega[ok], np.log(spectrum[ok]))
+    return offsets, log_w[None, :] + log_s - log_s.max(axis=1, keepdims=True)
+
+
 _RESIDUALS = {"exact": _residuals, "rough": _residuals_rough, "hertz": _residuals_hertz}
 
 
 def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, fit_gain=False,
-             speed0=None, a0=None, bin_factor=1.0, kernel=((0.0,), (1.0,)), solver="optimistix",
+             speed0=None, a0=None, bin_factor=1.0, kernel=((0.0,), (1.0,)), spectrum=None, solver="optimistix",
              curve: str = "exact") -> PairFit:
     """Fit log R_exact(omega / v; a) + log g to one pair's log AMPLITUDE ratio.
 
@@ -87,6 +116,9 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     bin_factor: the spectra's correlation between bins (inflates the covariance).
     kernel: the spectra's spectral window ``(offsets in bins, weights)``;
         the model averages R over it (resolution bias). Default: none.
+    spectrum: (M,) the shallow probe's spectrum as the estimator averaged it
+        (``spectra.whitened_psd``): weights the kernel (``kernel_log_weights``).
+        None: a flat spectrum.
     curve: "exact" (Gaussian window, Eq. 23), "rough" (Eq. 26) or "hertz" (Eq. 12).
     """
     if curve not in _RESIDUALS:
@@ -100,10 +132,9 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
             a_off = float(radius_from_offset(float(line.intercept) - np.log(gain_ratio), d1, d2))
             a0 = a_off if np.isfinite(a_off) else 2e-3
     theta0 = jnp.array([np.log(speed0), np.log(a0), np.log(gain_ratio)])
-    offsets, weights = (np.asarray(k, float) for k in kernel)
-    keep = weights > 0
+    offsets, log_w = kernel_log_weights(omega, kernel, spectrum)
     args = (jnp.asarray(omega), jnp.asarray(log_ratio), jnp.asarray(log_ratio_err), jnp.asarray(mask),
-            float(d1), float(d2), jnp.asarray(offsets[keep]), jnp.asarray(np.log(weights[keep])))
+            float(d1), float(d2), jnp.asarray(offsets), jnp.asarray(log_w))
     res = least_squares(_RESIDUALS[curve], theta0, args, jnp.array([True, True, bool(fit_gain)]), solver=solver,
                         bin_factor=float(bin_factor))
     th = np.asarray(res.theta)

@@ -48,6 +48,7 @@ __all__ = [
     "welch_spectra",
     "multitaper_spectra",
     "estimate_spectra",
+    "whitened_psd",
     "coherence",
     "amplitude_ratio",
     "usable_band",
@@ -574,6 +575,19 @@ def _unwhiten(spec: CrossSpectra, coeffs, fs) -> CrossSpectra:
 
 def _safe_div(num: Array, den: Array, ok: Array) -> Array:
     return num / jnp.where(ok, den, jnp.ones_like(den))
+
+
+def whitened_psd(spectra: CrossSpectra) -> Array:
+    """``(..., 4, M)`` the auto-spectra as the estimator averaged them: ``psd |A|^2``.
+
+    With prewhitening (``estimate_spectra(prewhiten=p)``) the spectral window
+    acted on the filtered signals; a model of the window average of R weights it
+    by this spectrum (``pair_fit.kernel_log_weights``). Without, ``psd``.
+    """
+    if spectra.whitening is None:
+        return spectra.psd
+    gain = filter_gain(spectra.whitening, spectra.omega, spectra.fs).astype(spectra.psd.dtype)
+    return spectra.psd * jnp.repeat(gain, 2, axis=-2)
 
 
 @jax.jit
