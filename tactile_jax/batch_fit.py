@@ -45,7 +45,7 @@ import numpy as np
 
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import FitOptions, dominant_line, joint_jackknife, leakage_only, resolution_segment
+from .fit import MIN_PAIR_BAND_BINS, FitOptions, dominant_line, joint_jackknife, leakage_only, resolution_segment
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
@@ -162,13 +162,14 @@ def _main_band(band):
 
 
 
-def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None) -> int:
+def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,
+                       min_band_bins: int = MIN_PAIR_BAND_BINS) -> int:
     """The chunk's Welch segment length: ``fit.resolution_segment`` for each record, their median.
 
     Each record wants the segment that resolves its faster pair's band (``fit.resolution_segment``:
-    at most 0.15 of log ratio per bin at its Eq. 6 speed, and at least 24 usable bins given the
-    ``n_band`` it has at ``nperseg0``), and at least ``nperseg0`` (the default). One length per
-    chunk (one compiled shape): the median record's.
+    at most 0.15 of log ratio per bin at its Eq. 6 speed, and at least ``min_band_bins`` usable
+    bins given the ``n_band`` it has at ``nperseg0``), and at least ``nperseg0`` (the default).
+    One length per chunk (one compiled shape): the median record's.
     speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m, n_band: (B, 2) or None.
     """
     v = np.where(line_ok, speed0, np.nan)
@@ -181,7 +182,7 @@ def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: in
     if n_band is not None:
         count = np.take_along_axis(np.asarray(n_band)[have], fast[:, None], axis=-1)[:, 0]
     want = np.maximum(resolution_segment(v_fast, fs[have], depths[have], n_samples, n_band=count,
-                                         nperseg=nperseg0), nperseg0)
+                                         nperseg=nperseg0, min_band_bins=min_band_bins), nperseg0)
     return int(np.sort(want)[(want.size - 1) // 2])
 
 
@@ -699,9 +700,12 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, leave_one_out=loo)
     if program.resolution and program.nperseg is None and options.method == "welch":
         nperseg0 = nperseg
+        # the pair model wants MIN_PAIR_BAND_BINS usable bins, the joint model FitOptions.min_band_bins
+        floor = MIN_PAIR_BAND_BINS if program.model == "pair" else options.min_band_bins
         finer = resolution_nperseg(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
                                    np.asarray(meta.depths), x.shape[-1], nperseg0,
-                                   n_band=np.asarray(stage["band"]).sum(axis=-1) if program.model == "pair" else None)
+                                   n_band=np.asarray(stage["band"]).sum(axis=-1) if floor else None,
+                                   min_band_bins=floor)
         if finer > nperseg0:
             nperseg = finer
             stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, leave_one_out=loo)

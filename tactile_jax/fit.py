@@ -71,6 +71,12 @@ class FitOptions:
         (``spectra.usable_band(neighbours=...)``: no selection bias at the band edge).
     profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
         profile-likelihood interval (``FitResult.vx_lo`` ...; adds 2-5 s to such a fit).
+    min_band_bins: the joint fit's Welch segment is lengthened until the faster pair's
+        band holds this many usable bins (``resolution_segment``); 0: the slope rule alone.
+        8 changed 8 of the 100 coverage scenes (slow slips and large contacts, 11-20 bins
+        -> 28-66, errors 2-5x smaller) and rescued short slow recordings (8 s, 1.5 cm/s:
+        6 bins and poor_fit -> 18 bins, |v| within 0.2 %); 12 also moved scenes that had
+        ~20 bins, with no gain (benchmarks/README.md, "Session 7").
     leakage_db: a bin whose shallow PSD lies this far below the highest within
         +/- 3 bins holds only spectral leakage (of a line texture) and is dropped.
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
@@ -95,6 +101,7 @@ class FitOptions:
     max_err: float = 0.5
     band_neighbours: int = 3
     profile_minor: bool = True
+    min_band_bins: int = 8
     fmin: float | None = None
     fmax: float | None = None
     leakage_db: float = 20.0
@@ -259,7 +266,8 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
     try:
         spec = estimate_spectra(signals, one.fs, method=options.method, prewhiten=options.prewhiten, **kw)
         if options.method == "welch" and not options.nperseg:
-            finer = _resolution_nperseg(spec, one.depths, signals.shape[-1], options)
+            finer = _resolution_nperseg(spec, one.depths, signals.shape[-1], options,
+                                        min_band_bins=options.min_band_bins)
             if finer:
                 spec = estimate_spectra(signals, one.fs, method="welch", prewhiten=options.prewhiten, nperseg=finer)
         # the same estimator with each segment (taper) left out in turn: the jackknife of the errors
@@ -289,8 +297,9 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, mi
     """A longer Welch segment when the band is poorly resolved (slow slips), else None.
 
     ``resolution_segment`` at the faster pair's Eq. 6 speed (and usable-bin count
-    when ``min_band_bins``: pair fits pass ``MIN_PAIR_BAND_BINS``; the joint fit
-    does not, as halving its averages cost it more than the bins gained).
+    when ``min_band_bins``: pair fits pass ``MIN_PAIR_BAND_BINS``; the joint fit a
+    floor, ``FitOptions.min_band_bins``, as halving its averages to reach 24 bins cost
+    it more than the bins gained, while a band of 5-10 bins cannot fix the direction).
     """
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err,

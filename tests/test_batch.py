@@ -255,6 +255,9 @@ def test_resolution_nperseg_follows_the_slowest_majority():
     assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 8192, 1024, n_band=np.array([[10, 40]] * 3)) == 2048
     assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 65536, 1024, n_band=np.array([[10, 40]] * 3)) == 4096
     assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 65536, 1024, n_band=np.array([[30, 2]] * 3)) == 1024
+    # the joint model's floor (FitOptions.min_band_bins = 8): 5 bins -> 1638 -> 2048; 10 bins: kept
+    assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 8192, 1024, n_band=np.array([[5, 40]] * 3), min_band_bins=8) == 2048
+    assert rule(np.array([[0.2, 0.0]] * 3), ok, fs, d, 8192, 1024, n_band=np.array([[10, 40]] * 3), min_band_bins=8) == 1024
     assert rule(np.array([[0.02, 0.0]] * 3), ok, fs, d, 65536, 1024) == 2048
     assert rule(np.array([[0.005, 0.0]] * 3), ok, fs, d, 65536, 1024) == 8192       # 5530 -> 8192
     mixed = np.array([[0.2, 0.0], [0.2, 0.0], [0.005, 0.0]])                        # the median record's

@@ -64,6 +64,19 @@ def test_minor_component_gets_a_skewed_profile_interval():
     assert "profile-likelihood" in res.message
 
 
+def test_slow_slip_on_a_short_recording_gets_enough_bins():
+    """8 s, 30 dB, 1.5 cm/s along x: the slope rule's segment left the joint fit 6 usable bins (5 + 1)
+    and a poor_fit at vx = 1.45 +/- 0.10 cm/s; the band floor (FitOptions.min_band_bins) takes 18."""
+    scene = dataclasses.replace(_scene(0.015, 0.0, 1.5e-3, seed=555, snr=30.0), duration=8.0)
+    res = fit_recording(simulate(scene))
+    assert res.status == "ok", res.message
+    assert res.n_bins >= 12
+    assert abs(res.vx - 0.015) < min(3 * res.vx_err, 0.02 * 0.015)
+    assert res.vx_err < 0.03 * 0.015
+    assert res.vy < 3 * res.vy_err or (res.vy_upper is not None and res.vy_upper > 0)
+    assert abs(res.a - scene.a) < 3 * res.a_err
+
+
 def test_known_velocity_is_held_fixed():
     scene = _scene(0.047, 0.0, 2.2e-3, seed=5)
     res = fit_recording(simulate(scene), FitOptions(velocity=(0.047, 0.0)))
