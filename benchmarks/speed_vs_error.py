@@ -5,7 +5,7 @@ valid model; Gaussian window, and a Hertz-window subset) over SNR 10-60 dB,
 speeds and contact radii. Each recording's x pair goes through:
 
   slope        Eq. 6 line (closed_form.slope_speed); a from its Eq. 26 offset
-  rough LS     least squares of the rough R (Eq. 26, r_curve.log_r_rough), written here
+  rough LS     least squares of the rough R (Eq. 26): pair_fit's rough-curve residuals
   exact LS     pair_fit.fit_pair: exact R (Eq. 23), optimistix LM        <- the time reference
                (its spectral-window average weighted by the prewhitened shallow spectrum;
                "exact LS flat window" weights it as if that spectrum were flat, as before session 7)
@@ -46,7 +46,6 @@ if "--float32-worker" not in sys.argv:
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from jax.scipy.special import logsumexp  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import peer_lmfit  # noqa: E402
@@ -57,8 +56,9 @@ from tactile_jax.jackknife import bin_correlation  # noqa: E402
 from tactile_jax.fit import _A_BOUNDS, FitOptions, fit_recording  # noqa: E402
 from tactile_jax.lsq import least_squares  # noqa: E402
 from tactile_jax.pair_fit import _residuals as exact_residuals  # noqa: E402
+from tactile_jax.pair_fit import _residuals_rough as rough_residuals  # noqa: E402
 from tactile_jax.pair_fit import fit_pair, kernel_log_weights  # noqa: E402
-from tactile_jax.r_curve import log_r_hertz, log_r_rough  # noqa: E402
+from tactile_jax.r_curve import log_r_hertz  # noqa: E402
 from tactile_jax.recording import Recording  # noqa: E402
 from tactile_jax.scene import Scene, simulate  # noqa: E402
 from tactile_jax.spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band, whitened_psd  # noqa: E402
@@ -71,24 +71,10 @@ REFERENCE = "exact LS"
 # ----------------------------------------------------------------------------- models written here
 
 
-def _kernel_model(log_r_fn, theta, omega, d1, d2, offsets, log_w):
-    log_v, log_a, log_g = theta[0], theta[1], theta[2]
-    d_omega = omega[1] - omega[0]
-    om = jnp.abs(omega[:, None] + offsets[None, :] * d_omega)
-    log_r = log_r_fn(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
-    return logsumexp(log_r + log_w, axis=-1) - logsumexp(log_w + jnp.zeros_like(log_r), axis=-1) + log_g
-
-
 def _weighted(model, args):
     omega, y, err, mask = args[:4]
     safe = jnp.where(mask, err, 1.0)
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe, 0.0)
-
-
-def rough_residuals(theta, args):
-    """pair_fit's residuals with the rough R (Eq. 26) in place of the exact one."""
-    omega, _, _, _, d1, d2, offsets, log_w = args
-    return _weighted(_kernel_model(log_r_rough, theta, omega, d1, d2, offsets, log_w), args)
 
 
 def hertz_residuals(theta, args):

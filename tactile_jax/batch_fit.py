@@ -51,7 +51,7 @@ from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
 from .r_curve import log_g, log_r_exact
 from jax.scipy.special import logsumexp
-from .spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band
+from .spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band, whitened_psd
 
 __all__ = ["MODELS", "SOLVERS", "ChunkMeta", "ChunkFit", "fit_chunk", "chunk_rows", "FitProgram", "resolution_nperseg"]
 
@@ -209,7 +209,7 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg,
         i_hi = jnp.max(jnp.where(any_band, idx, 0))
         white = spec.whitening if spec.whitening is not None else jnp.zeros((2, 1), shallow.dtype).at[:, 0].set(1.0)
         # the shallow spectra as the Welch average saw them (prewhitened): the pair model's kernel weights
-        log_seen = jnp.log(jnp.clip(shallow * filter_gain(white, ratio.omega, f).astype(shallow.dtype), 1e-300, None))
+        log_seen = jnp.log(jnp.clip(whitened_psd(spec)[0::2], 1e-300, None))
         out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
                    shallow=shallow, log_seen=log_seen, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
                    line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
@@ -275,26 +275,27 @@ def _window(stage, i0, length):
     return om, idx, valid
 
 
-def _seen_at(log_seen, pos):
-    """log of a pair's prewhitened shallow spectrum (M,) at positions ``pos`` in bins (any sign):
-    log-linear between bins at |pos|, the DC bin (notched by detrending) left out, as
-    ``pair_fit.kernel_log_weights``."""
+def _kernel_weights(log_seen, pos, log_w):
+    """Normalised log kernel weights (..., J) at kernel positions ``pos`` (..., J) in bins (any sign):
+    ``pair_fit.kernel_log_weights`` in JAX. log_seen (M,): a pair's prewhitened shallow spectrum,
+    taken log-linearly between bins at |pos|, the DC bin (notched by detrending) left out."""
     m = log_seen.shape[-1]
-    return jnp.interp(jnp.abs(pos), jnp.arange(1, m, dtype=log_seen.dtype), log_seen[1:])
+    w = log_w + jnp.interp(jnp.abs(pos), jnp.arange(1, m, dtype=log_seen.dtype), log_seen[1:])
+    return w - logsumexp(w, axis=-1, keepdims=True)
 
 
 def _pair_residuals(theta, args):
     """``pair_fit._residuals`` on any set of bins: the spectral-window average of R around each bin.
 
     args: omega (K,) rad/s (need not be contiguous), y, err, mask (K,), d1, d2 (m), offsets (J,)
-    in rad/s (kernel offsets times the bin width), log_w (K, J) log kernel weights times the
-    prewhitened shallow spectrum there (``kernel_log_weights``).
+    in rad/s (kernel offsets times the bin width), log_w (K, J) normalised log kernel weights
+    times the prewhitened shallow spectrum there (``_kernel_weights``).
     """
     omega, y, err, mask, d1, d2, offsets, log_w = args
     log_v, log_a, log_g = theta[0], theta[1], theta[2]
     om = jnp.abs(omega[:, None] + offsets[None, :])
     log_r = log_r_exact(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
-    model = logsumexp(log_r + log_w, axis=-1) - logsumexp(log_w, axis=-1) + log_g
+    model = logsumexp(log_r + log_w, axis=-1) + log_g
     safe_err = jnp.where(mask, err, 1.0)
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
@@ -321,9 +322,8 @@ def _pair_problems(stage, d, g, vel, known, n_fit, options, offsets, log_w):
     free = free & (jnp.sum(band, axis=-1) >= _MIN_PAIR_BINS)[:, None]
     two = jnp.ones(2)
     pos = om[:, :, None] / d_omega + offsets                                 # (2, n_fit, J) bins
-    log_wk = log_w + jax.vmap(_seen_at)(stage["log_seen"], pos)
     args = (om, y, err, mask, d[0] * two, d[1] * two, jnp.broadcast_to(offsets * d_omega, (2,) + offsets.shape),
-            log_wk)
+            jax.vmap(_kernel_weights, in_axes=(0, 0, None))(stage["log_seen"], pos, log_w))
     return theta0, args, free
 
 
@@ -337,8 +337,8 @@ class _GridResiduals:
     entry 2 l + shifts[j], taken as static strided slices (an XLA gather here would evaluate R
     again for every gathered entry: measured 7x slower on CPU).
     args: omega_grid (G,) rad/s, |the half-bin grid| under the window and its kernel; y, err,
-    mask (L,); d1, d2 (m); log_w (J,) log kernel weights; log_seen (G,) the prewhitened shallow
-    spectrum on the grid, which weights the kernel. Hashable: a static solver argument.
+    mask (L,); d1, d2 (m); log_w (L, J) normalised log kernel weights with the prewhitened shallow
+    spectrum in them (``_kernel_weights``). Hashable: a static solver argument.
     """
 
     shifts: tuple
@@ -348,12 +348,11 @@ class _GridResiduals:
         return jnp.stack([q[k:k + 2 * length - 1:2] for k in self.shifts], axis=-1)
 
     def __call__(self, theta, args):
-        omega_grid, y, err, mask, d1, d2, log_w, log_seen = args
+        omega_grid, y, err, mask, d1, d2, log_w = args
         log_v, log_a, log_g = theta[0], theta[1], theta[2]
         length = y.shape[-1]
         log_r = log_r_exact(omega_grid / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
-        w = self._at(log_seen, length) + log_w
-        model = logsumexp(self._at(log_r, length) + w, axis=-1) - logsumexp(w, axis=-1) + log_g
+        model = logsumexp(self._at(log_r, length) + log_w, axis=-1) + log_g
         safe_err = jnp.where(mask, err, 1.0)
         return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
@@ -363,7 +362,7 @@ class _GridResiduals:
         (About 3x faster than ``jax.jacfwd`` of ``__call__``, which carries three tangents
         through the kernel average; the test checks the two agree.)
         """
-        omega_grid, y, err, mask, d1, d2, log_w, log_seen = args
+        omega_grid, y, err, mask, d1, d2, log_w = args
         log_v, log_a, log_g = theta[0], theta[1], theta[2]
         length = y.shape[-1]
         ones = jnp.ones_like(omega_grid)
@@ -378,12 +377,11 @@ class _GridResiduals:
         def at(q):
             return self._at(q, length)
 
-        w = at(log_seen) + log_w
-        z = at(log_r) + w
+        z = at(log_r) + log_w
         lse = logsumexp(z, axis=-1)
         p = jnp.exp(z - lse[:, None])                                       # the kernel's softmax weights
         safe_err = jnp.where(mask, err, 1.0)
-        r = jnp.where(mask, (jnp.where(mask, y, 0.0) - lse + logsumexp(w, axis=-1) - log_g) / safe_err, 0.0)
+        r = jnp.where(mask, (jnp.where(mask, y, 0.0) - lse - log_g) / safe_err, 0.0)
         dm = jnp.stack([jnp.sum(p * at(d_v), axis=-1), jnp.sum(p * at(d_a), axis=-1), jnp.ones_like(lse)], axis=-1)
         jac = jnp.where(mask[:, None], -dm / safe_err[:, None], 0.0)
         return r, jac
@@ -417,8 +415,9 @@ def _pair_problems_grid(stage, d, g, vel, known, span, options, offsets, log_w):
     pos = first[:, None] + (jnp.arange(n_grid)[None, :] * 0.5 - half)        # in bins
     omega_grid = jnp.abs(pos * d_omega)
     two = jnp.ones(2)
-    args = (omega_grid, y, err, mask, d[0] * two, d[1] * two, jnp.broadcast_to(log_w, (2,) + log_w.shape),
-            jax.vmap(_seen_at)(stage["log_seen"], pos))
+    at = first[:, None, None] + jnp.arange(span)[None, :, None] + jnp.asarray(offsets)      # (2, L, J) bins
+    args = (omega_grid, y, err, mask, d[0] * two, d[1] * two,
+            jax.vmap(_kernel_weights, in_axes=(0, 0, None))(stage["log_seen"], at, log_w))
     return theta0, args, free
 
 

@@ -43,12 +43,12 @@ def _pair_residuals(log_r_fn, theta, args):
     omega, y, err, mask, d1, d2, offsets, log_w = args
     log_v, log_a, log_g = theta[0], theta[1], theta[2]
     # the expected H1 estimate at a bin is the average of R over the spectral window around it,
-    # weighted by the (prewhitened) shallow spectrum there: log_w is (J,) for a flat one, or
-    # (M, J) with the spectrum in it (``kernel_log_weights``)
+    # weighted by the (prewhitened) shallow spectrum there: log_w, normalised, is (J,) for a flat
+    # one or (M, J) with the spectrum in it (``kernel_log_weights``)
     d_omega = omega[1] - omega[0]
     om = jnp.abs(omega[:, None] + offsets[None, :] * d_omega)
     log_r = log_r_fn(om / jnp.exp(log_v), d1, d2, jnp.exp(log_a))
-    model = logsumexp(log_r + log_w, axis=-1) - logsumexp(log_w + jnp.zeros_like(log_r), axis=-1) + log_g
+    model = logsumexp(log_r + log_w, axis=-1) + log_g
     safe_err = jnp.where(mask, err, 1.0)
     return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / safe_err, 0.0)
 
@@ -82,23 +82,21 @@ def kernel_log_weights(omega, kernel, spectrum=None):
     a flat one. The ratio of window averages sum w S R / sum w S is R averaged
     with weights w S: where S is steep on the scale of the window (a slow slip's
     band near DC), a flat S biases the model by up to ~0.03 in log ratio.
-    Returns offsets (J,) of the non-zero weights and log weights, (J,) without a
-    spectrum, (M, J) with one (S interpolated log-linearly in |omega| between bins,
-    the DC bin, notched by detrending, left out).
+    Returns offsets (J,) of the non-zero weights and log weights normalised to sum
+    to 1, (J,) without a spectrum, (M, J) with one (S interpolated log-linearly in
+    |omega| between bins, the DC bin, notched by detrending, left out).
     """
     offsets, weights = (np.asarray(k, float) for k in kernel)
     keep = weights > 0
     offsets, log_w = offsets[keep], np.log(weights[keep])
-    if spectrum is None:
-        return offsets, log_w
-    omega = np.asarray(omega, float)
-    spectrum = np.asarray(spectrum, float)
-    at = np.abs(omega[:, None] + offsets[None, :] * (omega[1] - omega[0]))
-    ok = (omega > 0) & np.isfinite(spectrum) & (spectrum > 0)
-    if ok.sum() < 2:
-        return offsets, log_w
-    log_s = np.interp(at, omega[ok], np.log(spectrum[ok]))
-    return offsets, log_w[None, :] + log_s - log_s.max(axis=1, keepdims=True)
+    if spectrum is not None:
+        omega = np.asarray(omega, float)
+        spectrum = np.asarray(spectrum, float)
+        ok = (omega > 0) & np.isfinite(spectrum) & (spectrum > 0)
+        if ok.sum() >= 2:
+            at = np.abs(omega[:, None] + offsets[None, :] * (omega[1] - omega[0]))
+            log_w = log_w[None, :] + np.interp(at, omega[ok], np.log(spectrum[ok]))
+    return offsets, log_w - np.logaddexp.reduce(log_w, axis=-1, keepdims=True)
 
 
 _RESIDUALS = {"exact": _residuals, "rough": _residuals_rough, "hertz": _residuals_hertz}
