@@ -7,8 +7,9 @@ speeds and contact radii. Each recording's x pair goes through:
   slope        Eq. 6 line (closed_form.slope_speed); a from its Eq. 26 offset
   rough LS     least squares of the rough R (Eq. 26): pair_fit's rough-curve residuals
   exact LS     pair_fit.fit_pair: exact R (Eq. 23), optimistix LM        <- the time reference
-               (its spectral-window average weighted by the prewhitened shallow spectrum;
-               "exact LS flat window" weights it as if that spectrum were flat, as before session 7)
+               (its spectral-window average weighted by the prewhitened shallow spectrum, plus the
+               realised centroid term and noise-only bin errors, pair_fit.Leakage; "exact LS window
+               average" leaves the Leakage out, session 7's model)
   exact LS jaxopt / exact LS float32 (x64 off, in a subprocess)
   hertz LS     least squares of the Hertz-window R (r_curve.log_r_hertz), written here
   lmfit peer   benchmarks/peer_lmfit.py: scipy Welch + numpy exact R + lmfit leastsq (+ lmfit emcee)
@@ -21,9 +22,10 @@ the estimator alone unless said (spectra are timed once, apart); batched:
 one vmapped call over all recordings. Errors: bias and RMSE of |v| and a
 relative to the truth; efficiency = CRB / MSE pooled as 1 / mean(err^2 / CRB),
 with the pair CRB (crb.pair_crb) at the truth from each recording's per-bin
-errors, bins independent (the JSON also has eff_*_white, with the white-noise
-bin_factor 1.94, and eff_*_jk, with the neighbour correlation the recording's
-jackknife measures).
+errors of noise alone (pair_fit.noise_err), bins independent (the JSON also has
+eff_*_bp, with the Bendat-Piersol errors as they are, the bound of sessions
+5-7; eff_*_white, with the white-noise bin_factor 1.94; and eff_*_jk, with the
+neighbour correlation the recording's jackknife measures).
 Writes speed_vs_error.json and speed_vs_error.png (Pareto: time vs RMSE).
 
     python benchmarks/speed_vs_error.py --out benchmarks/out                 # ~10-15 min on 2 cores
@@ -57,7 +59,7 @@ from tactile_jax.fit import _A_BOUNDS, FitOptions, fit_recording  # noqa: E402
 from tactile_jax.lsq import least_squares  # noqa: E402
 from tactile_jax.pair_fit import _residuals as exact_residuals  # noqa: E402
 from tactile_jax.pair_fit import _residuals_rough as rough_residuals  # noqa: E402
-from tactile_jax.pair_fit import fit_pair, kernel_log_weights  # noqa: E402
+from tactile_jax.pair_fit import fit_pair, kernel_log_weights, pair_leakage  # noqa: E402
 from tactile_jax.r_curve import log_r_hertz  # noqa: E402
 from tactile_jax.recording import Recording  # noqa: E402
 from tactile_jax.scene import Scene, simulate  # noqa: E402
@@ -153,10 +155,11 @@ def _a_or_nan(a, a_err):
     return a if (a_err is not None and np.isfinite(a_err) and a_err <= 0.5 * a) else np.nan
 
 
-def pair_methods(x, d1, d2, kernel, bin_factor, spectrum, slow=True):
+def pair_methods(x, d1, d2, kernel, bin_factor, spectrum, leakage, slow=True):
     """All single-pair estimators on one x pair: {method: (v, a, ok, seconds)}; ``slow``: also jaxopt and Hertz.
 
     spectrum: the shallow spectrum that weights the spectral window (``shallow_seen``).
+    leakage: the pair's ``pair_fit.Leakage`` (``pair_leakage``).
     """
     omega, lr, err, mask = x
     out = {}
@@ -165,11 +168,12 @@ def pair_methods(x, d1, d2, kernel, bin_factor, spectrum, slow=True):
     out["slope (Eq. 6)"] = (float(line.speed), a_line, bool(line.ok), t)
     start = (float(line.speed) if bool(line.ok) else 0.01, a_line if np.isfinite(a_line) else 2e-3)
     t0 = time.perf_counter()
-    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, spectrum=spectrum)
+    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, spectrum=spectrum,
+                 leakage=leakage)
     out["exact LS"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
     t0 = time.perf_counter()
-    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor)
-    out["exact LS flat window"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
+    f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, spectrum=spectrum)
+    out["exact LS window average"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
     t0 = time.perf_counter()
     v_r, a_r, ok_r = _lsq_pair(rough_residuals, omega, lr, err, mask, d1, d2, kernel, start, spectrum)
     # the rough curve's offset 3 (d2^2 - d1^2) / (2 a^2) can fit to ~0: a runs off to metres, i.e. not measured
@@ -177,7 +181,7 @@ def pair_methods(x, d1, d2, kernel, bin_factor, spectrum, slow=True):
     if slow:
         t0 = time.perf_counter()
         f = fit_pair(omega, lr, err, mask, d1, d2, kernel=kernel, bin_factor=bin_factor, spectrum=spectrum,
-                     solver="jaxopt")
+                     leakage=leakage, solver="jaxopt")
         out["exact LS jaxopt"] = (f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0)
         t0 = time.perf_counter()
         r = _lsq_pair(hertz_residuals, omega, lr, err, mask, d1, d2, kernel, start, spectrum)
@@ -200,7 +204,8 @@ def float32_worker(npz_path, out_path):
         x = (np.asarray(ratio.omega), np.asarray(ratio.log_ratio[0]), np.asarray(ratio.log_ratio_err[0]),
              np.asarray(band[0]))
         t0 = time.perf_counter()
-        f = fit_pair(*x, d1, d2, kernel=spec.kernel, bin_factor=spec.bin_factor, spectrum=shallow_seen(spec))
+        f = fit_pair(*x, d1, d2, kernel=spec.kernel, bin_factor=spec.bin_factor, spectrum=shallow_seen(spec),
+                     leakage=pair_leakage(spec, 0))
         row = {"i": i, "exact LS float32": [f.speed, _a_or_nan(f.a, f.a_err), f.converged, time.perf_counter() - t0]}
         if i in joint_idx:
             rec = Recording(signals[i], fs, depths)
@@ -261,7 +266,7 @@ def run(args):
         x = (np.asarray(ratio.omega), np.asarray(ratio.log_ratio[0]), np.asarray(ratio.log_ratio_err[0]),
              np.asarray(band[0]))
         rows.append({"grid": g, "x": x, "kernel": spec.kernel, "bin_factor": float(spec.bin_factor), "est": {},
-                     "spectrum": shallow_seen(spec),
+                     "spectrum": shallow_seen(spec), "leakage": pair_leakage(spec, 0),
                      "nperseg": npersegs[i],
                      "slow": g["window"] == "hertz"})
     batch_spectra_s = 0.0
@@ -277,11 +282,12 @@ def run(args):
         if r["nperseg"] not in seen:                                        # compile for this shape
             seen.add(r["nperseg"])
             slow = any(q["slow"] and q["nperseg"] == r["nperseg"] for q in rows)
-            first = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], slow=slow)
-            done = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], slow=slow)
+            first = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], r["leakage"], slow=slow)
+            done = pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], r["leakage"], slow=slow)
             for name, val in first.items():
                 compile_s[f"{name} (nperseg {r['nperseg']})"] = val[3] - done[name][3]
-        r["est"].update(pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], slow=r["slow"]))
+        r["est"].update(pair_methods(r["x"], d1, d2, r["kernel"], r["bin_factor"], r["spectrum"], r["leakage"],
+                                     slow=r["slow"]))
     print("single-pair methods done", flush=True)
 
     # lmfit peer (its own spectra: scipy), and lmfit emcee on a subset
@@ -337,10 +343,11 @@ def run(args):
                 v, a, ok, dt, _ = f32[i]["joint float32"]
                 r["est"]["joint 2-D float32"] = (v, a if a is not None else np.nan, ok, dt)
 
-    # Cramer-Rao bound at the truth (Gaussian model) per recording from its per-bin errors, bins taken as
-    # independent: across realisations the log ratio's errors correlate by -0.23..+0.25 between neighbours
-    # (error_calibration.py). Also, for comparison, with the white-noise bin_factor (1.94: "_white") and
-    # with the neighbour correlation each recording's jackknife measures ("_jk"; biased high by 0.1-0.4)
+    # Cramer-Rao bound at the truth (Gaussian model) per recording from its per-bin errors of noise alone
+    # (the Bendat-Piersol error less the slope of R's share, pair_fit.noise_err, with the centroid term in
+    # the model), bins taken as independent. Also, for comparison, with the Bendat-Piersol errors as they
+    # are and no centroid term ("_bp", the bound of sessions 5-7), with the white-noise bin_factor (1.94:
+    # "_white") and with the neighbour correlation each recording's jackknife measures ("_jk")
     for i, r in enumerate(rows):
         g = r["grid"]
         omega, _, err, mask = r["x"]
@@ -348,8 +355,9 @@ def run(args):
                                leave_one_out=True)
         rho = bin_correlation(np.asarray(amplitude_ratio(loo).log_ratio[:, 0]), mask, max_lag=2)
         r["bin_corr"] = [float(x) for x in rho]
-        for suffix, kw in (("", {}), ("_white", {"bin_factor": r["bin_factor"]}),
-                           ("_jk", {"bin_corr": np.nan_to_num(rho)})):
+        lk = {"leakage": r["leakage"]}
+        for suffix, kw in (("", lk), ("_bp", {}), ("_white", {"bin_factor": r["bin_factor"], **lk}),
+                           ("_jk", {"bin_corr": np.nan_to_num(rho), **lk})):
             b = pair_crb(omega, err, mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"], spectrum=r["spectrum"], **kw)
             r["crb_v" + suffix], r["crb_a" + suffix] = float(b.speed_sd[0]), float(b.a_sd)
     rho = np.array([r["bin_corr"] for r in rows], float)
@@ -442,7 +450,7 @@ def summarise(rows, timing, snr_groups):
                     za = np.where(ok, ((a - at) / ca) ** 2, np.nan)
                     row["eff_v"] = float(1 / np.mean(zv[np.isfinite(zv)])) if np.isfinite(zv).any() else np.nan
                     row["eff_a"] = float(1 / np.mean(za[np.isfinite(za)])) if np.isfinite(za).any() else np.nan
-                    for suffix in ("_white", "_jk"):
+                    for suffix in ("_bp", "_white", "_jk"):
                         for q, est, true in (("v", v, vt), ("a", a, at)):
                             crb = np.array([r[f"crb_{q}{suffix}"] for r in have])
                             z = np.where(ok, ((est - true) / crb) ** 2, np.nan)
@@ -461,7 +469,7 @@ def summarise(rows, timing, snr_groups):
     return out
 
 
-METHOD_ORDER = ("slope (Eq. 6)", "rough LS (Eq. 26)", "exact LS", "exact LS flat window", "exact LS batched",
+METHOD_ORDER = ("slope (Eq. 6)", "rough LS (Eq. 26)", "exact LS", "exact LS window average", "exact LS batched",
                 "exact LS jaxopt", "exact LS float32", "hertz LS", "lmfit peer", "lmfit emcee mean", "joint 2-D", "joint 2-D jaxopt",
                 "joint 2-D float32", "joint emcee mean")
 
@@ -575,7 +583,7 @@ def main(argv=None):
     for lab in ("10-20", ">=30"):
         print(f"\nSNR {lab} dB\n" + markdown_table(summary, lab))
     per_rec = [{**{k: v for k, v in r["grid"].items() if k != "scene"}, "crb_v": r["crb_v"], "crb_a": r["crb_a"],
-                "bin_corr": r["bin_corr"], "crb_v_white": r["crb_v_white"], "crb_a_white": r["crb_a_white"],
+                "bin_corr": r["bin_corr"], "crb_v_bp": r["crb_v_bp"], "crb_a_bp": r["crb_a_bp"], "crb_v_white": r["crb_v_white"], "crb_a_white": r["crb_a_white"],
                 "crb_v_jk": r["crb_v_jk"], "crb_a_jk": r["crb_a_jk"],
                 "crb_joint_v": r.get("crb_joint_v"), "crb_joint_a": r.get("crb_joint_a"), "nperseg": r["nperseg"],
                 "est": {m: [None if (isinstance(x, float) and not np.isfinite(x)) else x for x in e]

@@ -38,7 +38,7 @@ import numpy as np
 
 from . import joint_model as jm
 from .pair_fit import _residuals as _pair_residuals
-from .pair_fit import kernel_log_weights
+from .pair_fit import centroid_shift, kernel_log_weights, noise_err
 
 __all__ = ["fisher_information", "bound_covariance", "banded_correlation", "Bound", "pair_crb", "joint_crb"]
 
@@ -115,7 +115,7 @@ def banded_correlation(rho, positions) -> np.ndarray:
 
 
 def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fit_gain=False,
-             kernel=((0.0,), (1.0,)), spectrum=None, bin_factor=1.0, bin_corr=None) -> Bound:
+             kernel=((0.0,), (1.0,)), spectrum=None, leakage=None, bin_factor=1.0, bin_corr=None) -> Bound:
     """Cramer-Rao bound on |v| and a from one pair's log AMPLITUDE ratio (the exact R model).
 
     omega: (M,) rad/s. log_ratio_err: (M,) one-sigma noise of log|P2/P1| per
@@ -123,17 +123,24 @@ def pair_crb(omega, log_ratio_err, mask, d1, d2, speed, a, *, gain_ratio=1.0, fi
     pair, m/s. a: true contact radius, m. gain_ratio: deep/shallow gain (known
     unless ``fit_gain``, which adds it as a nuisance). kernel: the spectra's
     spectral window ``(offsets in bins, weights)``, and spectrum, the shallow
-    spectrum that weights it, as in ``fit_pair``.
+    spectrum that weights it, as in ``fit_pair``. leakage: the pair's ``pair_fit.Leakage``: the
+    model gains the centroid term and the noise is the errors of noise alone at the truth
+    (``pair_fit.noise_err``), the bound of ``fit_pair(leakage=...)``.
     bin_factor: correlation of adjacent bins (``CrossSpectra.bin_factor``).
     bin_corr: instead, the correlations of the log ratio's errors at lags 1, 2, ...
     bins: F = J^T C^-1 J over the used bins.
     """
+    if leakage is not None:
+        log_ratio_err = np.where(mask, noise_err(omega, np.where(mask, log_ratio_err, 1.0), mask, speed, a, d1, d2,
+                                                 leakage), log_ratio_err)
     err = jnp.asarray(log_ratio_err)
     mask = jnp.asarray(mask, bool) & jnp.isfinite(err) & (err > 0)
     offsets, log_w = kernel_log_weights(omega, kernel, spectrum)
     omega = jnp.asarray(omega)
     args = (omega, jnp.zeros_like(omega), jnp.where(mask, err, 1.0), mask, d1, d2,
             jnp.asarray(offsets), jnp.asarray(log_w))
+    if leakage is not None:
+        args = args + (jnp.asarray(centroid_shift(offsets, log_w, leakage.centroid)),)
     theta = jnp.log(jnp.asarray([speed, a, gain_ratio], dtype=omega.dtype))
     free = jnp.array([True, True, bool(fit_gain)])
     if bin_corr is None:

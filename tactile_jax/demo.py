@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .closed_form import SlopeFit, slope_speed
-from .pair_fit import PairFit, fit_pair
+from .pair_fit import PairFit, fit_pair, pair_leakage
 from .r_curve import log_r_exact
 from .scene import Scene, simulate
 from .spectra import amplitude_ratio, estimate_spectra, usable_band, whitened_psd
@@ -58,7 +58,8 @@ def run_demo(out_dir="tactile_jax_demo", *, seed: int = 0, duration: float = 16.
     band = usable_band(ratio)
     args = (ratio.omega, ratio.log_ratio[0], ratio.log_ratio_err[0], band[0], d1, d2)
     line = slope_speed(*args, bin_factor=spec.bin_factor)
-    exact = fit_pair(*args, bin_factor=spec.bin_factor, kernel=spec.kernel, spectrum=np.asarray(whitened_psd(spec)[0]))
+    exact = fit_pair(*args, bin_factor=spec.bin_factor, kernel=spec.kernel, spectrum=np.asarray(whitened_psd(spec)[0]),
+                     leakage=pair_leakage(spec, 0))
     omega = np.asarray(ratio.omega)
     used = np.asarray(band[0])
     band_hz = (float(omega[used].min() / 2 / np.pi), float(omega[used].max() / 2 / np.pi)) if used.any() else (np.nan, np.nan)

@@ -95,6 +95,20 @@ class CrossSpectra(NamedTuple):
             applied before averaging (``estimate_spectra(prewhiten=p)``), or
             None. The estimator saw ``S |A|^2``: the kernel acts on that.
         fs: the sample rate, Hz (needed with ``whitening``), or None.
+        centroid: ``(..., 2, M)`` the realised power centroid of each pair's
+            shallow probe within each bin's spectral window, in bins:
+            ``Re sum conj(X1) X1' / sum |X1|^2`` over the segments, ``X1'`` the
+            segment's transform with the derivative taper ``(i n / 2 pi) w'(t)``
+            (Welch only; None for multitaper and for spectra read from a file).
+            For a deep probe that is a smooth filter R of the shallow one, the
+            H1 ratio at bin m is ``R_m + R'_m centroid_m`` to first order
+            (``R'`` per bin): the random part of the resolution error, which
+            ``pair_fit`` models.
+        spread: ``(..., 2, M)`` bins^2: ``sum |X1'|^2 / sum |X1|^2 - |c|^2`` with
+            ``c`` the complex centroid, the derivative transform's power that the
+            centroid does not explain. The deep probe's incoherent power from the
+            slope of R is ``R'^2 S11 spread``: a part of ``1 - coherence`` that is
+            not noise (``pair_fit.noise_err``). None where ``centroid`` is.
     """
 
     freq: Array
@@ -108,6 +122,8 @@ class CrossSpectra(NamedTuple):
     kernel: tuple = ((0.0,), (1.0,))
     whitening: Array | None = None
     fs: Array | None = None
+    centroid: Array | None = None
+    spread: Array | None = None
 
 
 class AmplitudeRatio(NamedTuple):
@@ -137,7 +153,7 @@ class AmplitudeRatio(NamedTuple):
 # Arrays are the leaves; counts and names are static metadata.
 jax.tree_util.register_pytree_node(
     CrossSpectra,
-    lambda s: ((s.freq, s.omega, s.psd, s.csd, s.whitening, s.fs),
+    lambda s: ((s.freq, s.omega, s.psd, s.csd, s.whitening, s.fs, s.centroid, s.spread),
                (s.n_segments, s.dof, s.method, s.bin_factor, s.kernel)),
     lambda aux, leaves: CrossSpectra(*leaves[:4], *aux, *leaves[4:]),
 )
@@ -336,12 +352,38 @@ def _pair_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
 
 def _leave_one_out_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
     """Delete-one averages of ``_pair_spectra``: a new leading axis of K, averaging all segments but k."""
-    k = spec.shape[-2]
+    return tuple(_drop_one(x) * scale for x in _segment_products(spec))
 
-    def drop_one(x):
-        return jnp.moveaxis((jnp.sum(x, axis=-2, keepdims=True) - x) / (k - 1), -2, 0) * scale
 
-    return tuple(drop_one(x) for x in _segment_products(spec))
+def _drop_one(x: Array) -> Array:
+    """Means over axis -2 (K) leaving each k out in turn, on a new leading axis of K."""
+    k = x.shape[-2]
+    return jnp.moveaxis((jnp.sum(x, axis=-2, keepdims=True) - x) / (k - 1), -2, 0)
+
+
+def _derivative_taper(w: np.ndarray) -> np.ndarray:
+    """The real h(t) with ``(i n / 2 pi) w'(t) = i h(t)``: w' the circular spectral derivative (exact for a
+    periodic window; Hann: h = sin(2 pi t / n) / 2), so that the transform with taper i h is the derivative of
+    the window's spectrum with respect to frequency in bins."""
+    n = w.size
+    k = np.fft.fftfreq(n) * n
+    if n % 2 == 0:
+        k[n // 2] = 0.0
+    return np.real(-np.fft.ifft(k * np.fft.fft(w)) / 1j)
+
+
+def _centroid(seg: Array, window: Array, dtaper: Array, leave_one_out: bool) -> tuple[Array, Array]:
+    """``CrossSpectra.centroid`` and ``spread`` of the shallow channels (0 and 2) of detrended segments (..., 4, K, n)."""
+    shallow = seg[..., 0::2, :, :]
+    x = jnp.fft.rfft(shallow * window, axis=-1)
+    xd = jnp.fft.rfft(shallow * dtaper, axis=-1) * 1j
+    cross = jnp.conj(x) * xd
+    mean = _drop_one if leave_one_out else (lambda v: jnp.mean(v, axis=-2))
+    power, cross, dpower = mean(jnp.square(jnp.abs(x))), mean(cross), mean(jnp.square(jnp.abs(xd)))
+    ok = power > 0
+    c = _safe_div(cross, power, ok)
+    spread = jnp.clip(_safe_div(dpower, power, ok) - jnp.square(jnp.abs(c)), 0.0, None)
+    return jnp.where(ok, c.real, 0.0), jnp.where(ok, spread, 0.0)
 
 
 def _freq_axis(fs: Array, nfft: int, dtype) -> tuple[Array, Array]:
@@ -350,10 +392,12 @@ def _freq_axis(fs: Array, nfft: int, dtype) -> tuple[Array, Array]:
 
 
 @functools.partial(jax.jit, static_argnames=("nperseg", "step", "n_segments", "detrend", "leave_one_out"))
-def _welch_core(x, fs, window, *, nperseg: int, step: int, n_segments: int, detrend: str, leave_one_out=False):
+def _welch_core(x, fs, window, dtaper, *, nperseg: int, step: int, n_segments: int, detrend: str,
+                leave_one_out=False):
     dtype = x.dtype
     fs = jnp.asarray(fs, dtype)
     window = jnp.asarray(window, dtype)
+    dtaper = jnp.asarray(dtaper, dtype)
     if nperseg % step == 0:
         # overlapping segments from strided blocks: a reshape and r slices, 31 % less time for the
         # batch's spectral stage than the gather below (256 records of 4 x 8192, 2 CPU cores)
@@ -368,7 +412,7 @@ def _welch_core(x, fs, window, *, nperseg: int, step: int, n_segments: int, detr
     scale = jnp.asarray(_onesided_factor(nperseg), dtype) / (fs * jnp.sum(jnp.square(window)))
     psd, csd = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
     freq, omega = _freq_axis(fs, nperseg, dtype)
-    return freq, omega, psd, csd
+    return (freq, omega, psd, csd) + _centroid(seg, window, dtaper, leave_one_out)
 
 
 @functools.partial(jax.jit, static_argnames=("nfft", "leave_one_out"))
@@ -456,11 +500,13 @@ def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", de
     step = nperseg - noverlap
     n_segments = (n_samples - nperseg) // step + 1
     _check_leave_one_out(leave_one_out, n_segments)
-    freq, omega, psd, csd = _welch_core(
-        x, fs, w, nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend, leave_one_out=bool(leave_one_out)
+    freq, omega, psd, csd, centroid, spread = _welch_core(
+        x, fs, w, _derivative_taper(w), nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend,
+        leave_one_out=bool(leave_one_out)
     )
     return CrossSpectra(freq, omega, psd, csd, n_segments, _welch_dof(w, step, n_segments), "welch",
-                        _bin_factor(w[None, :], nperseg), _spectral_kernel(w[None, :], nperseg, 3.0))
+                        _bin_factor(w[None, :], nperseg), _spectral_kernel(w[None, :], nperseg, 3.0),
+                        centroid=centroid, spread=spread)
 
 
 def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None, leave_one_out: bool = False) -> CrossSpectra:
