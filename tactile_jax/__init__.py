@@ -12,7 +12,7 @@ from .closed_form import radius_from_offset as radius_from_offset, slope_speed a
 from .errors import TactileInputError as TactileInputError
 from .io import read_recording as read_recording, read_spectra as read_spectra
 from .io import write_recording as write_recording, write_spectra as write_spectra
-from .pair_fit import PairFit as PairFit, fit_pair as fit_pair
+from .pair_fit import Leakage as Leakage, PairFit as PairFit, fit_pair as fit_pair, pair_leakage as pair_leakage
 from .probe import line_response as line_response, selectivity as selectivity
 from .r_curve import log_g as log_g, log_r_exact as log_r_exact, log_r_hertz as log_r_hertz
 from .r_curve import log_r_rough as log_r_rough
@@ -21,7 +21,7 @@ from .sensor import PAPER_SENSOR as PAPER_SENSOR, Sensor as Sensor
 from .sensor import contact_depth as contact_depth, contact_radius as contact_radius
 from .scene import Scene as Scene, simulate as simulate
 from .spectra import amplitude_ratio as amplitude_ratio, estimate_spectra as estimate_spectra
-from .spectra import usable_band as usable_band
+from .spectra import usable_band as usable_band, whitened_psd as whitened_psd
 from .texture import Grating as Grating, RandomTexture as RandomTexture, WireNet as WireNet
 
 __version__ = "0.1.0"
