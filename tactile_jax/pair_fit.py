@@ -42,6 +42,7 @@ class PairFit(NamedTuple):
 
 
 def _pair_residuals(log_r_fn, theta, args):
+    # args: omega, y, err, mask, d1, d2, offsets, log_w and, optionally, the centroid shift (M,) in bins
     omega, y, err, mask, d1, d2, offsets, log_w = args[:8]
     log_v, log_a, log_g = theta[0], theta[1], theta[2]
     # the expected H1 estimate at a bin is the average of R over the spectral window around it,
@@ -156,11 +157,13 @@ def noise_err(omega, log_ratio_err, mask, speed, a, d1, d2, leakage: Leakage, *,
     """(M,) the log ratio's error from noise alone: the Bendat-Piersol error less the slope of R's share.
 
     The H1 ratio's incoherent deep power includes R'^2 S11 spread (``Leakage``)
-    that the centroid term models, so var = err^2 - (R'/R)^2 spread / (2 K) at
-    (speed, a), R' per bin. Guarded against its noise: at least ``floor`` err^2,
-    and at least ``guard`` times the median of the used bins within 2 of it
-    (one bin's spread can cancel err^2 by chance; 30 dB fits lost 25-70 % in
-    |v| RMSE without the guard, seeded checks of session 8).
+    that the centroid term models, so var = err^2 - explained (R'/R)^2 spread / (2 K)
+    at (speed, a), R' per bin (of the exact curve, whatever the fitted one);
+    ``explained`` < 1 leaves the second-order term in the error (a noise-free
+    filter: the centroid removes 85 % of the model error's variance). Guarded
+    against its own noise: at least ``floor`` err^2, and at least ``guard`` times
+    the median of the used bins within 2 of it (one bin's spread can cancel err^2
+    by chance; without the guard 24 seeded 30 dB fits lost 50-70 % in RMSE).
     """
     omega = np.asarray(omega, float)
     err = np.asarray(log_ratio_err, float)
@@ -196,7 +199,7 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     leakage: the pair's ``Leakage`` (``pair_leakage(spectra, pair)``): the model adds the
         first-order random resolution error R' (centroid - expected), and the bins are weighted
         by their errors from noise alone (``noise_err``) at the estimate. At 45-60 dB this
-        divides the RMSE of |v| and a by 2-3 (benchmarks/README.md). None: left out.
+        divides the RMSE of |v| and a by 2-5 (benchmarks/README.md). None: left out.
     curve: "exact" (Gaussian window, Eq. 23), "rough" (Eq. 26) or "hertz" (Eq. 12).
     """
     if curve not in _RESIDUALS:
@@ -220,11 +223,11 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
         # a bound (1 of 24 recordings at 45 dB, 1.5 cm/s, 4 mm: chi2 50 there against 12 near the truth);
         # then weighted by the errors of noise alone at the estimate, twice (``noise_err``)
         args = args + (jnp.asarray(centroid_shift(offsets, log_w, leakage.centroid)),)
-        for _ in range(3):
+        for refit in range(3):
             start = jnp.where(jnp.all(jnp.isfinite(res.theta)), res.theta, theta0)
             res = least_squares(_RESIDUALS[curve], start, args, free, solver=solver, bin_factor=float(bin_factor))
             v_hat, a_hat = np.exp(np.asarray(res.theta[:2]))
-            if _ == 2 or not (np.isfinite(v_hat) and np.isfinite(a_hat)):
+            if refit == 2 or not (np.isfinite(v_hat) and np.isfinite(a_hat)):
                 break
             err = noise_err(omega, log_ratio_err, mask, v_hat, a_hat, d1, d2, leakage)
             args = args[:2] + (jnp.asarray(np.where(mask, err, 1.0)),) + args[3:]
