@@ -204,6 +204,9 @@ def fit_pair(omega, log_ratio, log_ratio_err, mask, d1, d2, *, gain_ratio=1.0, f
     """
     if curve not in _RESIDUALS:
         raise ValueError(f"unknown R curve {curve!r}; expected one of {CURVES}")
+    if leakage is not None and not (np.shape(leakage.centroid) == np.shape(leakage.spread) == np.shape(omega)):
+        raise ValueError(f"leakage has centroid {np.shape(leakage.centroid)} and spread {np.shape(leakage.spread)} "
+                         f"for omega {np.shape(omega)}: pass one recording's pair_leakage(spectra, pair)")
     mask = np.asarray(mask, bool) & np.isfinite(log_ratio) & np.isfinite(log_ratio_err)
     if speed0 is None or a0 is None:
         line = slope_speed(omega, log_ratio, log_ratio_err, mask, d1, d2)

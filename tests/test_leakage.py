@@ -106,3 +106,10 @@ def test_leave_one_out_and_multitaper_spectra_carry_their_leakage_or_none():
     assert loo.centroid.shape == (loo.n_segments, 2, 129)
     from tactile_jax.spectra import multitaper_spectra
     assert pair_leakage(multitaper_spectra(x, FS), 0) is None
+
+
+def test_leakage_of_another_shape_is_refused_in_one_line(filtered):
+    spec, omega, y, err, mask = filtered
+    lk = pair_leakage(spec, 0)
+    with pytest.raises(ValueError, match="pair_leakage"):
+        fit_pair(omega, y, err, mask, D1, D2, leakage=lk._replace(centroid=lk.centroid[:-1]))
