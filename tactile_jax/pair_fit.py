@@ -126,7 +126,7 @@ class Leakage(NamedTuple):
 
 def pair_leakage(spectra, pair: int = 0) -> Leakage | None:
     """``Leakage`` of pair 0 (x) or 1 (y) of one recording's ``CrossSpectra``; None without a centroid."""
-    if getattr(spectra, "centroid", None) is None or getattr(spectra, "spread", None) is None:
+    if spectra.centroid is None or spectra.spread is None:
         return None
     return Leakage(np.asarray(spectra.centroid, float)[..., pair, :], np.asarray(spectra.spread, float)[..., pair, :],
                    float(spectra.dof))
