@@ -26,13 +26,13 @@ from . import model_select
 from .closed_form import dominant_wavenumber, slope_speed
 from .errors import TactileInputError
 from .lsq import LsqResult, least_squares
-from .pair_fit import fit_pair
+from .pair_fit import Leakage, centroid_shift, fit_pair, kernel_log_weights, noise_err_from_slope
 from .problem import FitProblem
 from .r_curve import log_g
 from .recording import Recording, validate_recording
 from .sensor import PAPER_SENSOR
 from .prewhiten import filter_gain
-from .spectra import CrossSpectra, amplitude_ratio, estimate_spectra, usable_band
+from .spectra import CrossSpectra, amplitude_ratio, estimate_spectra, usable_band, whitened_psd
 
 __all__ = ["FitOptions", "FitResult", "TextureSection", "fit_recording", "fit_cross_spectra", "fit_spectra", "model_curves",
            "RESULT_FIELDS"]
@@ -79,6 +79,12 @@ class FitOptions:
         ~20 bins, with no gain (benchmarks/README.md, "Session 7").
     leakage_db: a bin whose shallow PSD lies this far below the highest within
         +/- 3 bins holds only spectral leakage (of a line texture) and is dropped.
+    window_term: model each bin's realised window average (``joint_model.ModelData.centroid_shift``,
+        from Welch spectra's ``centroid``) and weight the ratio by its errors of noise alone
+        (``pair_fit.noise_err_from_slope``): one more solve from the window-average fit. Off by
+        default: on issue 3's 40 scenes at 50 dB it changed nothing beyond noise (both speeds within
+        2 % of |v| in 33 against 34, a within 5 % in 38 and 38; benchmarks/README.md, "Session 9"),
+        where the pair fit gains 2-5x at 45-60 dB.
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
     model: the scene model (``model_select.MODELS``): None (default: slip and contact
@@ -105,6 +111,7 @@ class FitOptions:
     fmin: float | None = None
     fmax: float | None = None
     leakage_db: float = 20.0
+    window_term: bool = False
     solver: str = "optimistix"
     window: str = "gaussian"
     model: str | None = None
@@ -584,6 +591,10 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
                         jnp.asarray([d1, d2]), jnp.asarray(theta0), jnp.asarray(prior_inv_sd), jnp.asarray(1.0 / options.smoothness),
                         jnp.asarray(white_grid), jnp.asarray(white_bin),
                         *(jnp.asarray(v) for v in jm.banded_kernel(kernel)))
+    # the window term's slots are always there, with a zero shift until the term is fitted: one compiled
+    # model for every stage and for ``window_term`` on or off
+    data = data._replace(edge_index=jnp.asarray(_edge_index(om, grid)), centroid_shift=jnp.zeros((2, length)))
+    term = _window_term(spec, idx, valid) if options.window_term else None
     n_prior = jm.n_prior_residuals(theta0.size)
     # Several starts for the speeds: the single-pair fits mistake a pair that hears only window
     # leakage (slip across it) for a fast slip along it, so also try each axis as the major one.
@@ -611,8 +622,10 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
                               max_steps=256, n_prior=n_prior, rtol=_TOL["full"], atol=_TOL["full"])
         if fit is None or (np.isfinite(float(trial.chi2)) and float(trial.chi2) < float(fit.chi2)):
             fit = trial
+    if term is not None:
+        fit, data = _refit_window_term(fit, free, data, term, lr_err, mask_h, n_prior, options.solver)
     fit, free = _select_model(res, fit, free, data, options, n_prior, spec.bin_factor, noise0)
-    scale = _error_scale(res, fit, free, data, spec, leave_one_out, idx)
+    scale = _error_scale(res, fit, free, data, spec, leave_one_out, idx, term)
     window_weak = False
     if options.model is None:                   # the default model: is the window needed at all?
         needed, note = model_select.window_needed(fit, free, data, n_prior=n_prior, solver=options.solver,
@@ -635,7 +648,51 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
     return res
 
 
-def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
+class _WindowTerm(NamedTuple):
+    """A recording's realised window term on the joint fit's bins (``_window_term``)."""
+
+    shift: np.ndarray           # (2, L) centroid less the weights' own, bins (0 past the spectra)
+    expected: np.ndarray        # (2, L) the weights' own centroid, bins
+    leakage: tuple              # per pair, ``pair_fit.Leakage`` on the L bins
+
+
+def _edge_index(om, grid) -> np.ndarray:
+    """(2, L) indices of om -+ half a bin on the half-bin ``grid`` (``joint_model.ModelData.edge_index``)."""
+    d_omega = float(om[1] - om[0])
+    return np.stack([np.rint((om + h * d_omega - grid[0]) / (0.5 * d_omega)).astype(np.int32) for h in (-0.5, 0.5)])
+
+
+def _window_term(spec: CrossSpectra, idx, valid) -> _WindowTerm | None:
+    """The joint model's realised window term from Welch spectra's centroids; None without them."""
+    if spec.centroid is None or spec.spread is None:
+        return None
+    omega = np.asarray(spec.omega)
+    seen = np.asarray(whitened_psd(spec))[0::2]
+    centroid, spread = np.asarray(spec.centroid, float), np.asarray(spec.spread, float)
+    expected = np.zeros((2, idx.size))
+    shift = np.zeros((2, idx.size))
+    leakage = []
+    for p in range(2):
+        offsets, log_w = kernel_log_weights(omega, spec.kernel, seen[p])
+        full = centroid_shift(offsets, log_w, centroid[p])
+        shift[p] = np.where(valid, full[idx], 0.0)
+        expected[p] = np.where(valid, centroid[p][idx] - full[idx], 0.0)
+        leakage.append(Leakage(centroid[p][idx], spread[p][idx], float(spec.dof)))
+    return _WindowTerm(shift, expected, tuple(leakage))
+
+
+def _refit_window_term(fit, free, data: jm.ModelData, term: _WindowTerm, lr_err, mask_h, n_prior, solver):
+    """The fit with the window term, weighted by the ratio's noise-alone errors at the window-average fit."""
+    slope = np.asarray(jm.ratio_slope(fit.theta, data))
+    err = np.stack([noise_err_from_slope(lr_err[p], slope[p], mask_h[p], term.leakage[p]) for p in range(2)])
+    data = data._replace(h_err=jnp.asarray(np.where(mask_h, err, 1.0)), centroid_shift=jnp.asarray(term.shift))
+    trial = least_squares(jm.residuals, fit.theta, data, jnp.asarray(free), solver=solver, max_steps=256,
+                          n_prior=n_prior, rtol=_TOL["full"], atol=_TOL["full"])
+    ok = bool(np.all(np.isfinite(np.asarray(trial.theta)))) and np.isfinite(float(trial.chi2))
+    return (trial, data) if ok else (fit, data)
+
+
+def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> float:
     """The variance scale of the fit's unit covariance (J^T J)^-1; records how it was found in ``res``.
 
     With delete-one spectra: the jackknife's variance over the Laplace one, pooled
@@ -653,9 +710,12 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
     if leave_one_out is None:
         return fallback
     k = leave_one_out.n_segments
+    shift_k = None
+    if term is not None and data.centroid_shift is not None and leave_one_out.centroid is not None:
+        shift_k = np.where(data.mask_h, np.asarray(leave_one_out.centroid)[:, :, idx] - term.expected, 0.0)
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
-        idx, k / leave_one_out.dof, fit.redchi))
+        idx, k / leave_one_out.dof, fit.redchi, shift_k))
     ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(("vx", "vy", "a"))
               if free[i] and var_unit[i] > 0}
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios,
@@ -666,17 +726,20 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx) -> float:
     return float(scale)
 
 
-def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi):
+def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi, shift_k=None):
     """The delete-one-segment jackknife of a joint fit (jnp; the batch's compiled stage calls it too).
 
     log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
     K delete-one spectra; idx: (L,) the bins of ``data``; overlap: n_segments / dof.
+    shift_k: (K, 2, L) their ``data.centroid_shift`` when the model has the window term, else None.
     Returns the jackknife and unit Laplace variances (P,), (P,), their ratio pooled
     over the free vx, vy, a, and the variance scale of the error bars: the pooled
     ratio, never below ``redchi`` (NaN when there is none).
     """
     fields = {"log_h": jnp.where(data.mask_h, log_ratio_k[:, :, idx], 0.0),
               "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], 1e-300, None)), 0.0)}
+    if shift_k is not None:          # the window term's centroids change with the segment left out too
+        fields["centroid_shift"] = jnp.asarray(shift_k)
     shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
     var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
     pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))

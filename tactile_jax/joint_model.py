@@ -39,7 +39,7 @@ from ._quadrature import gauss_legendre
 from .r_curve import log_g
 
 __all__ = ["PARAMS", "N_FIXED_PARAMS", "ModelData", "banded_kernel", "param_names", "log_phi_at", "log_spectra",
-           "residuals", "n_prior_residuals"]
+           "residuals", "n_prior_residuals", "ratio_slope"]
 
 #: names of the leading parameters; ``log_phi_j`` follow for the texture knots
 PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise")
@@ -78,6 +78,11 @@ class ModelData(NamedTuple):
         the grid points of each bin's spectral window and their log weights. When given, the
         window average gathers J points per bin instead of summing over all F: the model's
         cost no longer grows as L x F (measured: see ``fit``).
+    edge_index, centroid_shift: optional (2, L) grid indices of each bin's edges (omega -+ half a
+        bin) and (2, L) each pair's realised shallow-power centroid in the bin's window less the one
+        the window's weights expect (``pair_fit.centroid_shift``, bins). When given, the model adds
+        the first-order realised window term R'_m shift_m to the ratio (``pair_fit``'s, with R the
+        ratio of the model's densities, S12 / S11, on the grid).
     """
 
     omega: jax.Array
@@ -98,6 +103,8 @@ class ModelData(NamedTuple):
     log_white_bin: jax.Array
     kernel_index: jax.Array | None = None
     kernel_log_w: jax.Array | None = None
+    edge_index: jax.Array | None = None
+    centroid_shift: jax.Array | None = None
 
 
 def banded_kernel(kernel):
@@ -220,8 +227,8 @@ def _pair_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi):
     return s11[order], s12[order]
 
 
-def log_spectra(theta, data: ModelData):
-    """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, as the estimator sees them."""
+def _grid_log_densities(theta, data: ModelData):
+    """Model log S11 and log S12 (with gains, level and noise floor) of both pairs on the grid: (2, F) each."""
     vx, vy, a = jnp.exp(theta[0]), jnp.exp(theta[1]), jnp.exp(theta[2])
     log_gains = jnp.stack([theta[3], theta[4]])
     log_amp = jnp.stack([0.0, theta[5]])
@@ -231,22 +238,43 @@ def log_spectra(theta, data: ModelData):
     s11, s12 = _pair_log_densities(data.grid_omega, vx, vy, a, d1, d2, data.log_k_knots, log_phi)
     s11 = s11 + log_amp[:, None]
     s12 = s12 + log_amp[:, None] + log_gains[:, None]
-    s11 = jnp.logaddexp(s11, log_noise)                          # shallow white noise floor
+    return jnp.logaddexp(s11, log_noise), s12                   # shallow white noise floor
+
+
+def _window_average(s, data: ModelData):
+    """(2, L) log of each bin's spectral-window average of the grid density exp(s) (2, F), as estimated."""
     if data.kernel_index is not None:                            # banded: J grid points per bin
         idx, log_w = data.kernel_index, data.kernel_log_w
+        return logsumexp(log_w[None] + (s + data.log_white_grid)[:, idx], axis=-1) - data.log_white_bin
+    log_kernel = jnp.log(jnp.clip(data.kernel, 1e-300, None))  # dense (L, F) kernel
+    log_kernel = jnp.where(data.kernel > 0, log_kernel, -2e4)
+    terms = log_kernel[None] + s[:, None, :] + data.log_white_grid[:, None, :]
+    return logsumexp(terms, axis=-1) - data.log_white_bin
 
-        def window_average(s):
-            return logsumexp(log_w[None] + (s + data.log_white_grid)[:, idx], axis=-1) - data.log_white_bin
-    else:                                                        # dense (L, F) kernel
-        log_kernel = jnp.log(jnp.clip(data.kernel, 1e-300, None))
-        log_kernel = jnp.where(data.kernel > 0, log_kernel, -2e4)
 
-        def window_average(s):
-            terms = log_kernel[None] + s[:, None, :] + data.log_white_grid[:, None, :]
-            return logsumexp(terms, axis=-1) - data.log_white_bin
-    bin_s11 = window_average(s11)                                # (2, L)
-    bin_s12 = window_average(s12)
-    return bin_s11, bin_s12 - bin_s11
+def _edge_slope(log_r_grid, log_h, data: ModelData):
+    """(2, L) (R(omega + half a bin) - R(omega - half a bin)) / R-bar with R = S12 / S11 on the grid."""
+    lo = log_r_grid[:, data.edge_index[0]]
+    hi = log_r_grid[:, data.edge_index[1]]
+    return jnp.exp(hi - log_h) - jnp.exp(lo - log_h)
+
+
+def log_spectra(theta, data: ModelData):
+    """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, as the estimator sees them."""
+    s11, s12 = _grid_log_densities(theta, data)
+    bin_s11 = _window_average(s11, data)
+    log_h = _window_average(s12, data) - bin_s11
+    if data.centroid_shift is not None:                          # this recording's window term
+        log_h = log_h + jnp.log1p(jnp.clip(_edge_slope(s12 - s11, log_h, data) * data.centroid_shift, -0.5, None))
+    return bin_s11, log_h
+
+
+@jax.jit
+def ratio_slope(theta, data: ModelData):
+    """(2, L) the model's relative slope of the amplitude ratio across each bin (needs ``data.edge_index``):
+    the slope ``pair_fit.noise_err_from_slope`` takes, for the joint model."""
+    s11, s12 = _grid_log_densities(theta, data)
+    return _edge_slope(s12 - s11, _window_average(s12, data) - _window_average(s11, data), data)
 
 
 def n_prior_residuals(n_params: int) -> int:

@@ -20,7 +20,7 @@ from .r_curve import log_r_exact, log_r_hertz, log_r_rough
 from jax.scipy.special import logsumexp
 
 __all__ = ["PairFit", "Leakage", "fit_pair", "pair_leakage", "kernel_log_weights", "centroid_shift", "noise_err",
-           "CURVES"]
+           "noise_err_from_slope", "CURVES"]
 
 #: R curves a pair can be fitted with: Gaussian exact (Eq. 23), the rough Eq. 26, Hertz (Eq. 12, 1-D texture)
 CURVES = ("exact", "rough", "hertz")
@@ -166,8 +166,14 @@ def noise_err(omega, log_ratio_err, mask, speed, a, d1, d2, leakage: Leakage, *,
     by chance; without the guard 24 seeded 30 dB fits lost 50-70 % in RMSE).
     """
     omega = np.asarray(omega, float)
-    err = np.asarray(log_ratio_err, float)
     slope = np.asarray(_relative_slope(jnp.asarray(omega), speed, a, d1, d2))
+    return noise_err_from_slope(log_ratio_err, slope, mask, leakage, explained=explained, floor=floor, guard=guard)
+
+
+def noise_err_from_slope(log_ratio_err, slope, mask, leakage: Leakage, *, explained=0.85, floor=0.05, guard=0.5):
+    """``noise_err`` with R's relative slope across each bin given: (M,) from any model (the joint one's too)."""
+    err = np.asarray(log_ratio_err, float)
+    slope = np.asarray(slope, float)
     var = np.maximum(err ** 2 - explained * slope ** 2 * np.asarray(leakage.spread, float) / (2.0 * leakage.dof),
                      floor * err ** 2)
     used = np.flatnonzero(np.asarray(mask, bool) & np.isfinite(var))

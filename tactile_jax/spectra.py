@@ -109,6 +109,12 @@ class CrossSpectra(NamedTuple):
             centroid does not explain. The deep probe's incoherent power from the
             slope of R is ``R'^2 S11 spread``: a part of ``1 - coherence`` that is
             not noise (``pair_fit.noise_err``). None where ``centroid`` is.
+        bin_corr: ``(rho_1, rho_2, ...)`` the correlations of white-noise
+            estimates 1, 2, ... bins apart, to the first below 1e-3 (Hann Welch:
+            0.444, 0.028). With a coherent pair and noise on the deep probe they
+            are those of the log ratio's errors too (``crb.pair_crb``;
+            benchmarks/README.md, "Session 9"). A tuple of Python floats; ()
+            for spectra read from a file.
     """
 
     freq: Array
@@ -124,6 +130,7 @@ class CrossSpectra(NamedTuple):
     fs: Array | None = None
     centroid: Array | None = None
     spread: Array | None = None
+    bin_corr: tuple = ()
 
 
 class AmplitudeRatio(NamedTuple):
@@ -154,8 +161,8 @@ class AmplitudeRatio(NamedTuple):
 jax.tree_util.register_pytree_node(
     CrossSpectra,
     lambda s: ((s.freq, s.omega, s.psd, s.csd, s.whitening, s.fs, s.centroid, s.spread),
-               (s.n_segments, s.dof, s.method, s.bin_factor, s.kernel)),
-    lambda aux, leaves: CrossSpectra(*leaves[:4], *aux, *leaves[4:]),
+               (s.n_segments, s.dof, s.method, s.bin_factor, s.kernel, s.bin_corr)),
+    lambda aux, leaves: CrossSpectra(*leaves[:4], *aux[:5], *leaves[4:], bin_corr=aux[5]),
 )
 jax.tree_util.register_pytree_node(
     AmplitudeRatio,
@@ -289,17 +296,26 @@ def _welch_dof(w: np.ndarray, step: int, n_segments: int) -> float:
     return n_segments / (1.0 + 2.0 * total)
 
 
-def _bin_factor(tapers: np.ndarray, nfft: int) -> float:
-    """1 + 2 sum_{j>=1} rho_j for the average of unit-energy ``tapers`` (K, n) periodograms.
-
-    rho_j = (1/K) sum_{k,l} |sum_n h_k h_l exp(-2 pi i j n / nfft)|^2 is the
-    correlation of white-noise spectral estimates j bins apart (Percival & Walden).
-    """
+def _bin_rho(tapers: np.ndarray, nfft: int) -> np.ndarray:
+    """rho_j, j = 0 .. nfft/2 - 1: the correlation of white-noise spectral estimates j bins apart
+    for the average of unit-energy ``tapers`` (K, n) periodograms,
+    (1/K) sum_{k,l} |sum_n h_k h_l exp(-2 pi i j n / nfft)|^2 (Percival & Walden)."""
     h = tapers / np.sqrt(np.sum(tapers * tapers, axis=-1, keepdims=True))
     k = h.shape[0]
     prod = (h[:, None, :] * h[None, :, :]).reshape(k * k, -1)
-    rho = np.sum(np.abs(np.fft.rfft(prod, n=nfft, axis=-1)) ** 2, axis=0) / k
-    return float(1.0 + 2.0 * np.sum(rho[1:nfft // 2]))
+    return np.sum(np.abs(np.fft.rfft(prod, n=nfft, axis=-1)) ** 2, axis=0)[:nfft // 2] / k
+
+
+def _bin_factor(rho: np.ndarray) -> float:
+    """1 + 2 sum_{j>=1} rho_j: the variance inflation of a sum over many adjacent bins."""
+    return float(1.0 + 2.0 * np.sum(rho[1:]))
+
+
+def _bin_corr(rho: np.ndarray, max_lag: int = 16) -> tuple:
+    """``CrossSpectra.bin_corr``: rho_1, rho_2, ... up to the first below 1e-3 (at most ``max_lag``)."""
+    lags = rho[1:max_lag + 1]
+    small = np.flatnonzero(lags < 1e-3)
+    return tuple(float(r) for r in lags[:small[0] if small.size else lags.size])
 
 
 def _spectral_kernel(tapers: np.ndarray, nfft: int, half_width: float, step: float = 0.5) -> tuple:
@@ -504,9 +520,10 @@ def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", de
         x, fs, w, _derivative_taper(w), nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend,
         leave_one_out=bool(leave_one_out)
     )
+    rho = _bin_rho(w[None, :], nperseg)
     return CrossSpectra(freq, omega, psd, csd, n_segments, _welch_dof(w, step, n_segments), "welch",
-                        _bin_factor(w[None, :], nperseg), _spectral_kernel(w[None, :], nperseg, 3.0),
-                        centroid=centroid, spread=spread)
+                        _bin_factor(rho), _spectral_kernel(w[None, :], nperseg, 3.0),
+                        centroid=centroid, spread=spread, bin_corr=_bin_corr(rho))
 
 
 def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None, leave_one_out: bool = False) -> CrossSpectra:
@@ -564,8 +581,10 @@ def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None, leave_o
     _check_leave_one_out(leave_one_out, n_tapers)
     tapers = _dpss_tapers(n_samples, nw, n_tapers)
     freq, omega, psd, csd = _multitaper_core(x, fs, tapers, nfft=nfft, leave_one_out=bool(leave_one_out))
+    rho = _bin_rho(tapers, nfft)
     return CrossSpectra(freq, omega, psd, csd, n_tapers, float(n_tapers), "multitaper",
-                        _bin_factor(tapers, nfft), _spectral_kernel(tapers, nfft, math.ceil(nw * nfft / n_samples) + 1.0))
+                        _bin_factor(rho), _spectral_kernel(tapers, nfft, math.ceil(nw * nfft / n_samples) + 1.0),
+                        bin_corr=_bin_corr(rho))
 
 
 _ESTIMATORS = {"welch": welch_spectra, "multitaper": multitaper_spectra}

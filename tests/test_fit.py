@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tactile_jax import joint_model as jm
 from tactile_jax.fit import FitOptions, fit_cross_spectra, fit_recording
 from tactile_jax.scene import Scene, simulate
 from tactile_jax.spectra import estimate_spectra
@@ -46,6 +47,30 @@ def test_oblique_slip_small_contact_recovered(oblique):
     assert res.error_method.startswith("laplace x jackknife") and row["error_scale"] == res.error_scale
     assert set(jk["variance_ratio"]) == {"vx", "vy", "a"} and 0.2 < jk["pooled"] < 5
     assert res.error_scale == pytest.approx(max(jk["pooled"], res.redchi))
+
+
+def test_the_joint_model_carries_the_realised_window_term(oblique):
+    """Welch centroids enter the joint fit with ``FitOptions(window_term=True)``: the ratio moves by R' x shift,
+    with R' the model's own slope across the bin (``joint_model.ratio_slope``, which the noise-alone
+    errors take), and the ratio is weighted by those errors (``pair_fit.noise_err_from_slope``).
+    The same compiled model as the default fit's (a zero shift there)."""
+    scene, plain = oblique
+    assert not np.any(np.asarray(plain.problem.args.centroid_shift))
+    res = fit_recording(simulate(scene), FitOptions(window_term=True))
+    assert res.status == "ok", res.message
+    speed = float(np.hypot(*scene.velocity))
+    assert abs(res.vx - plain.vx) < 0.01 * speed and abs(res.a - plain.a) < 2 * res.a_err
+    data, theta = res.problem.args, np.asarray(res.problem.theta)
+    used = np.asarray(data.mask_h)
+    shift = np.asarray(data.centroid_shift)
+    assert np.all(np.abs(shift[used]) < 1.0) and 0.03 < np.std(shift[used]) < 0.5    # bins
+    slope = np.asarray(jm.ratio_slope(theta, data))
+    assert np.mean(slope[used] < 0) > 0.9     # deep / shallow falls with omega (2-D: the y pair's rises at DC)
+    _, with_term = jm.log_spectra(theta, data)
+    _, without = jm.log_spectra(theta, data._replace(centroid_shift=None))
+    np.testing.assert_allclose(np.asarray(with_term - without)[used], np.log1p(slope * shift)[used], atol=1e-9)
+    ratio = np.asarray(data.h_err)[used] / np.asarray(res.spectrum["log_ratio_err"])[used]
+    assert np.all(ratio >= np.sqrt(0.05) - 1e-9) and np.median(ratio) < 1.0   # floored; the slope's share out
 
 
 def test_minor_component_gets_a_skewed_profile_interval():

@@ -352,3 +352,23 @@ def test_neighbour_selection_removes_the_band_edge_selection_bias():
     assert abs(bias[3]) < 0.015, bias
     with pytest.raises(TactileInputError, match="neighbours"):
         usable_band(ratio, neighbours=-1)
+
+
+def test_bin_corr_is_the_log_ratios_neighbour_correlation():
+    """``CrossSpectra.bin_corr`` (Hann Welch: 4/9, 1/36) is the correlation of the log ratio's errors
+    between neighbouring bins for a coherent pair with noise on the deep probe (``crb.pair_crb``)."""
+    rng = np.random.default_rng(3)
+    n, gain = 128_000, 0.3
+    x1 = rng.standard_normal((2, n))
+    x2 = gain * x1 + 0.15 * rng.standard_normal((2, n))
+    spec = welch_spectra(_pairs(x1[0], x2[0], x1[1], x2[1]), FS, nperseg=512)
+    assert spec.bin_corr == pytest.approx((4 / 9, 1 / 36))
+    assert spec.bin_factor == pytest.approx(1 + 2 * sum(spec.bin_corr))
+    dev = np.asarray(amplitude_ratio(spec).log_ratio)[:, 1:-1] - np.log(gain)
+    dev = dev - dev.mean(axis=1, keepdims=True)
+    lag = [np.sum(dev[:, :-j] * dev[:, j:]) / np.sqrt(np.sum(dev[:, :-j] ** 2) * np.sum(dev[:, j:] ** 2))
+           for j in (1, 2, 3)]
+    assert lag[0] == pytest.approx(spec.bin_corr[0], abs=0.08)      # 508 pairs of bins: sd ~0.04
+    assert abs(lag[1] - spec.bin_corr[1]) < 0.08 and abs(lag[2]) < 0.08
+    taper = multitaper_spectra(_pairs(x1[0], x2[0], x1[1], x2[1])[..., :4000], FS)
+    assert len(taper.bin_corr) > 2 and taper.bin_factor == pytest.approx(1 + 2 * sum(taper.bin_corr), rel=1e-3)
