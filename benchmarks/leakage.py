@@ -25,7 +25,6 @@ import json
 import os
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import jax
@@ -35,7 +34,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_vs_error import pair_data, scene_grid, shallow_seen  # noqa: E402
+from speed_vs_error import cell_noise_err, pair_data, scene_grid, shallow_seen  # noqa: E402
 
 from tactile_jax.crb import pair_crb  # noqa: E402
 from tactile_jax.pair_fit import fit_pair, noise_err, pair_leakage  # noqa: E402
@@ -79,12 +78,8 @@ def run_cell(snr, speed, a, nperseg, reps):
     # the bound of the cell's noise: each bin's noise-alone variance averaged over the cell's recordings
     # (one recording's is an estimate with ~K degrees of freedom, and 1 / var over-counts information),
     # with the estimator's correlation between neighbouring bins (``CrossSpectra.bin_corr``)
-    with warnings.catch_warnings():          # a bin no recording of the cell uses: NaN, its own used below
-        warnings.simplefilter("ignore", RuntimeWarning)
-        var = np.nanmean(np.stack([r["noise_var"] for r in rows]), axis=0)
-    for r in rows:
+    for r, err in zip(rows, cell_noise_err([r.pop("noise_var") for r in rows])):
         omega, mask, d1, d2, kw, lk, rho = r.pop("bound_args")
-        err = np.sqrt(np.where(np.isfinite(var), var, r.pop("noise_var")))
         b = pair_crb(omega, np.where(mask, err, 1.0), mask, d1, d2, speed, a, leakage=lk, noise_alone=True,
                      bin_corr=rho, **kw)
         r["crb_cell"] = (float(b.speed_sd[0]) / speed, float(b.a_sd) / a)

@@ -118,6 +118,20 @@ def pair_data(signals, fs, nperseg=None):
     return spec, ratio, band
 
 
+def cell_noise_err(noise_vars):
+    """Each recording's bound errors from a cell's (R, M) noise-alone variances (NaN where a recording leaves
+    a bin out): each bin's variance averaged over the cell's recordings, a recording's own where none uses it.
+
+    One recording's noise-alone error is an estimate with ~K degrees of freedom, and a bound built from its
+    1 / var over-counts the information (benchmarks/README.md, "Session 9"). Returns (R, M) errors.
+    """
+    noise_vars = np.asarray(noise_vars, float)
+    with warnings.catch_warnings():      # a bin no recording of the cell uses: NaN, its own used below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        var = np.nanmean(noise_vars, axis=0)
+    return np.sqrt(np.where(np.isfinite(var), var, noise_vars))
+
+
 def shallow_seen(spec):
     """The x pair's shallow spectrum as the Welch average saw it (``fit_pair(spectrum=...)``)."""
     return np.asarray(whitened_psd(spec)[..., 0, :])
@@ -377,13 +391,10 @@ def run(args):
         g = r["grid"]
         cells.setdefault((g["window"], g["snr_db"], g["speed"], g["a"], npersegs[i]), []).append(r)
     for members in cells.values():
-        with warnings.catch_warnings():      # a bin no recording of the cell uses: NaN, its own used below
-            warnings.simplefilter("ignore", RuntimeWarning)
-            var = np.nanmean(np.stack([r["noise_var"] for r in members]), axis=0)
-        for r in members:
+        errs = cell_noise_err([r.pop("noise_var") for r in members])
+        for r, err in zip(members, errs):
             g = r["grid"]
             omega, _, _, mask = r["x"]
-            err = np.sqrt(np.where(np.isfinite(var), var, r.pop("noise_var")))
             b = pair_crb(omega, np.where(mask, err, 1.0), mask, d1, d2, g["speed"], g["a"], kernel=r["kernel"],
                          spectrum=r["spectrum"], leakage=r["leakage"], noise_alone=True, bin_corr=r["bin_corr_white"])
             r["crb_v"], r["crb_a"] = float(b.speed_sd[0]), float(b.a_sd)

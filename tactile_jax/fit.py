@@ -652,8 +652,7 @@ class _WindowTerm(NamedTuple):
     """A recording's realised window term on the joint fit's bins (``_window_term``)."""
 
     shift: np.ndarray           # (2, L) centroid less the weights' own, bins (0 past the spectra)
-    expected: np.ndarray        # (2, L) the weights' own centroid, bins
-    leakage: tuple              # per pair, ``pair_fit.Leakage`` on the L bins
+    leakage: tuple              # per pair, ``pair_fit.Leakage`` on the L bins: centroid - shift is the weights'
 
 
 def _edge_index(om, grid) -> np.ndarray:
@@ -669,16 +668,14 @@ def _window_term(spec: CrossSpectra, idx, valid) -> _WindowTerm | None:
     omega = np.asarray(spec.omega)
     seen = np.asarray(whitened_psd(spec))[0::2]
     centroid, spread = np.asarray(spec.centroid, float), np.asarray(spec.spread, float)
-    expected = np.zeros((2, idx.size))
     shift = np.zeros((2, idx.size))
     leakage = []
     for p in range(2):
         offsets, log_w = kernel_log_weights(omega, spec.kernel, seen[p])
         full = centroid_shift(offsets, log_w, centroid[p])
         shift[p] = np.where(valid, full[idx], 0.0)
-        expected[p] = np.where(valid, centroid[p][idx] - full[idx], 0.0)
         leakage.append(Leakage(centroid[p][idx], spread[p][idx], float(spec.dof)))
-    return _WindowTerm(shift, expected, tuple(leakage))
+    return _WindowTerm(shift, tuple(leakage))
 
 
 def _refit_window_term(fit, free, data: jm.ModelData, term: _WindowTerm, lr_err, mask_h, n_prior, solver):
@@ -711,8 +708,9 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
         return fallback
     k = leave_one_out.n_segments
     shift_k = None
-    if term is not None and data.centroid_shift is not None and leave_one_out.centroid is not None:
-        shift_k = np.where(data.mask_h, np.asarray(leave_one_out.centroid)[:, :, idx] - term.expected, 0.0)
+    if term is not None and leave_one_out.centroid is not None:
+        expected = np.stack([lk.centroid for lk in term.leakage]) - term.shift      # the weights' own centroid
+        shift_k = np.where(data.mask_h, np.asarray(leave_one_out.centroid)[:, :, idx] - expected, 0.0)
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
         idx, k / leave_one_out.dof, fit.redchi, shift_k))
