@@ -45,13 +45,15 @@ import numpy as np
 
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import MIN_PAIR_BAND_BINS, FitOptions, dominant_line, joint_jackknife, leakage_only, resolution_segment
+from .fit import (MIN_PAIR_BAND_BINS, FitOptions, conditioned_fields, dominant_line, joint_jackknife, leakage_only,
+                  resolution_segment)
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
 from .prewhiten import filter_gain
 from .r_curve import log_g, log_r_exact
 from jax.scipy.special import logsumexp
-from .spectra import amplitude_ratio, default_nperseg, estimate_spectra, usable_band, whitened_psd
+from .spectra import (amplitude_ratio, conditioned_psd, default_nperseg, estimate_spectra, neighbour_log_ratio_err, usable_band,
+                      whitened_psd)
 
 __all__ = ["MODELS", "SOLVERS", "ChunkMeta", "ChunkFit", "fit_chunk", "chunk_rows", "FitProgram", "resolution_nperseg"]
 
@@ -210,12 +212,20 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg,
         white = spec.whitening if spec.whitening is not None else jnp.zeros((2, 1), shallow.dtype).at[:, 0].set(1.0)
         # the shallow spectra as the Welch average saw them (prewhitened): the pair model's kernel weights
         log_seen = jnp.log(jnp.clip(whitened_psd(spec)[0::2], 1e-300, None))
-        out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
+        # the joint model's errors from the neighbours' coherence, as fit.py's (``spectra.neighbour_log_ratio_err``);
+        # the pair model keeps each bin's own: with the neighbours', the flat pair of a fast slip along x
+        # (tests/test_batch.py) stopped reading as a runaway and left its record not_converged
+        out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err,
+                   err_joint=neighbour_log_ratio_err(ratio, options.band_neighbours), band=band,
                    shallow=shallow, log_seen=log_seen, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
                    line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
+        if options.conditioned:             # the joint model's conditioned deep PSDs (``fit.conditioned_fields``)
+            out.update(c22=conditioned_psd(spec), psd=spec.psd)
         if leave_one_out:                   # the delete-one-segment spectra of the jackknife (the joint model)
             loo = _spectra(x, f, options, nperseg, leave_one_out=True)
             out.update(loo_log_ratio=amplitude_ratio(loo).log_ratio, loo_shallow=loo.psd[:, 0::2])
+            if options.conditioned:
+                out.update(loo_c22=jnp.log(jnp.clip(conditioned_psd(loo), 1e-300, None)))
         return out
 
     return jax.vmap(one)(signals, fs, depths, gains)
@@ -468,7 +478,7 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     shallow = stage["shallow"]
     log_s11 = jnp.log(jnp.clip(shallow[:, idx], 1e-300, None))
     lr = jnp.where(mask, stage["log_ratio"][:, idx], 0.0)
-    lr_err = jnp.where(mask, stage["err"][:, idx], 1.0)
+    lr_err = jnp.where(mask, stage["err_joint"][:, idx], 1.0)
     n_band = jnp.sum(band, axis=-1)
     # starts from the pair fits (as fit.py): speeds where a pair was fitted, a from the better-determined pair
     theta_p, cov_p = pair.theta, pair.cov
@@ -514,6 +524,9 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     data = jm.ModelData(om, log_s11, lr, lr_err, mask, mask, s11_weight, grid, kernel, log_knots,
                         jnp.stack([d1, d2]), theta0, prior_inv_sd, jnp.asarray(1.0 / options.smoothness),
                         white_grid, white_bin, *banded)
+    if options.conditioned:
+        data = data._replace(**conditioned_fields(stage["c22"][:, idx], om, stage["psd"], stage["omega"], dof, mask,
+                                                  use=True, noise_floor=options.noise_floor))
     n_prior = jm.n_prior_residuals(n_par)
     # second start: the axis with more shallow power as the major one, the other at 0.15 of it
     power = jnp.sum(jnp.where(band, shallow, 0.0), axis=-1)
@@ -535,7 +548,7 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     fit = jax.tree_util.tree_map(lambda t: t[best], fits)
     # the error bars' variance scale from the delete-one-segment jackknife, as ``fit_recording``'s
     *_, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx, overlap,
-                                fit.redchi)
+                                fit.redchi, log_c22_k=stage["loo_c22"][:, :, idx] if options.conditioned else None)
     return fit, free, scale
 
 

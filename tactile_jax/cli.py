@@ -6,6 +6,7 @@ Bad input ends with one line ``error: <file>: <problem>`` and exit status 2.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import sys
@@ -78,7 +79,6 @@ def main():
 def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth, window, fs, duration, snr_db,
              noiseless, gains, seed, records):
     """Simulate a scene and write it as a recording file with its truth."""
-    import dataclasses
     import math
 
     import numpy as np
@@ -218,9 +218,11 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
 @click.option("--model", "model", default=None,
               help="Scene model: auto (chosen by BIC), slip, window (default), window+gain, window+noise, "
                    "window+gain+noise, hertz.")
+@click.option("--ratio-only", is_flag=True,
+              help="Leave out the deep probe's conditioned PSD S22.1 (fit the ratio and shallow PSD alone).")
 @_user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
-        quiet, scene=None, model=None):
+        quiet, scene=None, model=None, ratio_only=False):
     """Fit slip velocity, contact radius and gains to recordings or spectra files; write one row per record.
 
     FILE is a recording (.h5/.hdf5/.npz with 'signals') or a spectra file (with 'omega').
@@ -249,6 +251,8 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
     known = None if velocity is None else tuple(abs(v) for v in _floats(velocity, 2, "velocity"))
     options = FitOptions(method=method, velocity=known, fit_gain=fit_gain, noise_floor=noise_floor, solver=solver)
     options = _scene_options(options, scene, model)
+    if ratio_only:
+        options = dataclasses.replace(options, conditioned=False)
     mcmc_settings = dict(n_walkers=walkers, n_steps=steps, seed=seed) if mcmc else None
 
     rows, failures = [], []
@@ -289,7 +293,6 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
 
 def _scene_options(options, scene, model):
     """Recipe (--scene) first, then the flags given on the command line, then --model."""
-    import dataclasses
 
     from click.core import ParameterSource
 

@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.special
 
 from . import jackknife
 from . import joint_model as jm
@@ -32,7 +33,8 @@ from .r_curve import log_g
 from .recording import Recording, validate_recording
 from .sensor import PAPER_SENSOR
 from .prewhiten import filter_gain
-from .spectra import CrossSpectra, amplitude_ratio, estimate_spectra, usable_band, whitened_psd
+from .spectra import (CrossSpectra, amplitude_ratio, conditioned_psd, estimate_spectra, neighbour_log_ratio_err,
+                      usable_band, whitened_psd)
 
 __all__ = ["FitOptions", "FitResult", "TextureSection", "fit_recording", "fit_cross_spectra", "fit_spectra", "model_curves",
            "RESULT_FIELDS"]
@@ -67,8 +69,10 @@ class FitOptions:
     n_knots: knots of the isotropic log texture spectrum; smoothness: the prior sd of
         its second differences between knots (smaller: smoother).
     min_snr, max_err, fmin, fmax: usable-band selection (``spectra.usable_band``; Hz).
-    band_neighbours: judge each bin by its 2 n neighbours' coherence, not its own
-        (``spectra.usable_band(neighbours=...)``: no selection bias at the band edge).
+    band_neighbours: judge each bin by its 2 n neighbours' coherence, not its own, both for the
+        band (``spectra.usable_band(neighbours=...)``: no selection bias at the band edge) and for
+        the ratio's errors (``spectra.neighbour_log_ratio_err``: no weighting bias; with the bin's
+        own, |v| came out +0.8 +/- 0.3 % high at 1.2 cm/s, 50 dB; benchmarks/README.md, "Session 10").
     profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
         profile-likelihood interval (``FitResult.vx_lo`` ...; adds 2-5 s to such a fit).
     min_band_bins: the joint fit's Welch segment is lengthened until the faster pair's
@@ -85,6 +89,12 @@ class FitOptions:
         default: on issue 3's 40 scenes at 50 dB it changed nothing beyond noise (both speeds within
         2 % of |v| in 33 against 34, a within 5 % in 38 and 38; benchmarks/README.md, "Session 9"),
         where the pair fit gains 2-5x at 45-60 dB.
+    conditioned: fit each pair's conditioned deep PSD S22.1 = S22 - |S12|^2 / S11 too
+        (``joint_model.ModelData.log_c22``): the deep power the shallow probe does not explain,
+        which 2-D slip through a small contact sets. On issue 3's 40 scenes at 50 dB it halved
+        the minor speed's and a's scatter at 4-8 cm/s (rms 0.66 -> 0.33 % of |v|, 0.92 -> 0.45 %)
+        and vy's at 1-2 cm/s (4.1 -> 2.3 %); benchmarks/README.md, "Session 10". False: the
+        ratio and the shallow PSD alone (the same compiled model, S22.1 masked out).
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
     model: the scene model (``model_select.MODELS``): None (default: slip and contact
@@ -112,6 +122,7 @@ class FitOptions:
     fmax: float | None = None
     leakage_db: float = 20.0
     window_term: bool = False
+    conditioned: bool = True
     solver: str = "optimistix"
     window: str = "gaussian"
     model: str | None = None
@@ -512,7 +523,9 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
     for o, w in zip(offsets, weights):
         pos = np.rint(((om + o * d_omega) - grid[0]) / (0.5 * d_omega)).astype(int)
         kernel[np.arange(length), pos] += w
-    ratio_np = (np.asarray(ratio.log_ratio), np.asarray(ratio.log_ratio_err))
+    # errors (hence weights) from the neighbours' coherence: the bin's own would weight up the bins whose
+    # ratio came out high (``spectra.neighbour_log_ratio_err``)
+    ratio_np = (np.asarray(ratio.log_ratio), np.asarray(neighbour_log_ratio_err(ratio, options.band_neighbours)))
     mask_h = band[:, idx] & valid
     log_s11 = np.log(np.clip(shallow[:, idx], 1e-300, None))
     lr = np.where(mask_h, ratio_np[0][:, idx], 0.0)
@@ -594,6 +607,11 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
     # the window term's slots are always there, with a zero shift until the term is fitted: one compiled
     # model for every stage and for ``window_term`` on or off
     data = data._replace(edge_index=jnp.asarray(_edge_index(om, grid)), centroid_shift=jnp.zeros((2, length)))
+    # the conditioned deep PSD's slots are always there too (masked out unless ``options.conditioned``)
+    c22 = np.asarray(conditioned_psd(spec))[:, idx]
+    data = data._replace(**conditioned_fields(jnp.asarray(c22), jnp.asarray(om), jnp.asarray(spec.psd), spec.omega,
+                                              spec.dof, jnp.asarray(mask_h & valid), use=options.conditioned,
+                                              noise_floor=options.noise_floor))
     term = _window_term(spec, idx, valid) if options.window_term else None
     n_prior = jm.n_prior_residuals(theta0.size)
     # Several starts for the speeds: the single-pair fits mistake a pair that hears only window
@@ -655,6 +673,29 @@ class _WindowTerm(NamedTuple):
     leakage: tuple              # per pair, ``pair_fit.Leakage`` on the L bins: centroid - shift is the weights'
 
 
+def conditioned_fields(c22, om, psd, omega, dof: float, mask, *, use: bool, noise_floor: bool) -> dict:
+    """``joint_model.ModelData``'s S22.1 fields (``FitOptions.conditioned``); jnp, for ``fit`` and the batch.
+
+    c22: (2, L) ``spectra.conditioned_psd`` at the fit's bins om (L,), rad/s; psd: (4, M)
+    the four PSDs at omega (M,); mask: (2, L) the ratio's bins. Bins within two of DC
+    are left out (the segments' mean removal reshapes the spectral window there, which
+    the ratio cancels and S22.1 does not). The white-noise PSDs are the medians of S11
+    and S22 above 3/4 of the top frequency; with ``noise_floor`` the model's fitted floor
+    is the shallow one. use False: the slots with nothing in them (one compiled model).
+    """
+    d_omega = omega[1] - omega[0]
+    tail = jnp.where(omega >= 0.75 * omega[-1], psd, jnp.nan)
+    noise = jnp.log(jnp.nanmedian(tail, axis=-1) + 1e-300).reshape(2, 2)          # [[x1, x2], [y1, y2]]
+    if noise_floor:
+        noise = noise.at[:, 0].set(-700.0)
+    k1 = max(float(dof) - 1.0, 1.0)
+    mask = mask & (c22 > 0) & (om >= 1.5 * d_omega)[None, :] & bool(use) & (float(dof) > 2.0)
+    return {"log_c22": jnp.where(mask, jnp.log(jnp.where(mask, c22, 1.0)), 0.0), "mask_c22": mask,
+            "c22_weight": jnp.asarray(math.sqrt(k1)),
+            "c22_offset": jnp.asarray(float(scipy.special.digamma(k1)) - math.log(k1)),
+            "log_noise_c22": noise}
+
+
 def _edge_index(om, grid) -> np.ndarray:
     """(2, L) indices of om -+ half a bin on the half-bin ``grid`` (``joint_model.ModelData.edge_index``)."""
     d_omega = float(om[1] - om[0])
@@ -711,9 +752,12 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
     if term is not None and leave_one_out.centroid is not None:
         expected = np.stack([lk.centroid for lk in term.leakage]) - term.shift      # the weights' own centroid
         shift_k = np.where(data.mask_h, np.asarray(leave_one_out.centroid)[:, :, idx] - expected, 0.0)
+    c22_k = None
+    if data.log_c22 is not None and bool(np.any(data.mask_c22)):
+        c22_k = np.log(np.clip(np.asarray(conditioned_psd(leave_one_out))[:, :, idx], 1e-300, None))
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
-        idx, k / leave_one_out.dof, fit.redchi, shift_k))
+        idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k))
     ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(("vx", "vy", "a"))
               if free[i] and var_unit[i] > 0}
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios,
@@ -724,12 +768,14 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
     return float(scale)
 
 
-def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi, shift_k=None):
+def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi, shift_k=None,
+                    log_c22_k=None):
     """The delete-one-segment jackknife of a joint fit (jnp; the batch's compiled stage calls it too).
 
     log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
     K delete-one spectra; idx: (L,) the bins of ``data``; overlap: n_segments / dof.
     shift_k: (K, 2, L) their ``data.centroid_shift`` when the model has the window term, else None.
+    log_c22_k: (K, 2, L) their log conditioned deep PSDs when the fit uses them, else None.
     Returns the jackknife and unit Laplace variances (P,), (P,), their ratio pooled
     over the free vx, vy, a, and the variance scale of the error bars: the pooled
     ratio, never below ``redchi`` (NaN when there is none).
@@ -738,6 +784,8 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
               "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], 1e-300, None)), 0.0)}
     if shift_k is not None:          # the window term's centroids change with the segment left out too
         fields["centroid_shift"] = jnp.asarray(shift_k)
+    if log_c22_k is not None:
+        fields["log_c22"] = jnp.where(data.mask_c22, jnp.asarray(log_c22_k), 0.0)
     shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
     var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
     pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))
@@ -845,6 +893,9 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
             setattr(res, name + suffix, value)
         notes.append(f"{name} is a minor component (the spectra depend on it quadratically): "
                      f"profile-likelihood 1-sigma interval [{_fmt_speed(lo)}, {_fmt_speed(hi)}]")
+        if lo2 == 0.0 and hi2 is not None:      # the profile's 2-sigma interval reaches 0: bound it too
+            setattr(res, name + "_upper", hi2)
+            notes.append(f"{name} is consistent with 0 at 2 sigma (95 % upper bound {_fmt_speed(hi2)})")
     # contact radius
     a_err = float(a * sd[2])
     if window_weak or a_err > 0.5 * a or a > 0.5 * _A_BOUNDS[1]:

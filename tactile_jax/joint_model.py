@@ -39,7 +39,7 @@ from ._quadrature import gauss_legendre
 from .r_curve import log_g
 
 __all__ = ["PARAMS", "N_FIXED_PARAMS", "ModelData", "banded_kernel", "param_names", "log_phi_at", "log_spectra",
-           "residuals", "n_prior_residuals", "ratio_slope"]
+           "residuals", "n_prior_residuals", "ratio_slope", "log_conditioned"]
 
 #: names of the leading parameters; ``log_phi_j`` follow for the texture knots
 PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise")
@@ -83,6 +83,14 @@ class ModelData(NamedTuple):
         the window's weights expect (``pair_fit.centroid_shift``, bins). When given, the model adds
         the first-order realised window term R'_m shift_m to the ratio (``pair_fit``'s, with R the
         ratio of the model's densities, S12 / S11, on the grid).
+    log_c22, mask_c22, c22_weight, c22_offset, log_noise_c22: optional; (2, L) measured log
+        conditioned deep PSD S22.1 = S22 - |S12|^2 / S11 of each pair (Bendat & Piersol: the deep
+        power the shallow probe does not explain), the bins used, 1 / sd of its log (sqrt(K - 1)),
+        the mean of log(chi^2_2(K-1) / 2(K-1)) its estimate carries (psi(K - 1) - log(K - 1)) and
+        (2, 2) log white-noise PSDs [shallow, deep] of each pair. When given, the residuals
+        include S22.1: under 2-D slip the modes on the line k . v = omega decay at different
+        |k|, so the pair is not fully coherent, by an amount set by vx, vy and a
+        (``log_conditioned``).
     """
 
     omega: jax.Array
@@ -105,6 +113,11 @@ class ModelData(NamedTuple):
     kernel_log_w: jax.Array | None = None
     edge_index: jax.Array | None = None
     centroid_shift: jax.Array | None = None
+    log_c22: jax.Array | None = None
+    mask_c22: jax.Array | None = None
+    c22_weight: jax.Array | None = None
+    c22_offset: jax.Array | None = None
+    log_noise_c22: jax.Array | None = None
 
 
 def banded_kernel(kernel):
@@ -192,8 +205,8 @@ def _log_phi(kx, ky, log_k_knots, log_phi):
     return log_phi_at(log_k, log_k_knots, log_phi)
 
 
-def _pair_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi):
-    """log E[S11], log E[S12] (without gains) of the x and y pairs at omega (F,): each (2, F)."""
+def _pair_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi, deep: bool = False):
+    """log E[S11], log E[S12] (and log E[S22] if ``deep``; without gains) of the x and y pairs at omega (F,): each (2, F)."""
     k_g = _LOG_EDGE / (2.0 * d1)                 # |k_s| where G(k_s; d1)^2 < exp(-25)
     k_l = (3.0 * _LOG_EDGE) ** 0.5 / a           # |k_p| where L^2 < exp(-25)
     by_ky = vx >= vy                             # parametrise by ky (solve kx) or by kx
@@ -224,21 +237,27 @@ def _pair_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi):
     s12 = jnp.maximum(logsumexp(base + lg1 + lg2, axis=-1), -1e4)
     # by_ky: the x pair is branch "s" (its sensitive kx is solved), the y pair branch "u"; else swapped
     order = jnp.where(by_ky, jnp.array([0, 1]), jnp.array([1, 0]))
-    return s11[order], s12[order]
+    if not deep:
+        return s11[order], s12[order]
+    s22 = jnp.maximum(logsumexp(base + 2.0 * lg2, axis=-1), -1e4)
+    return s11[order], s12[order], s22[order]
 
 
-def _grid_log_densities(theta, data: ModelData):
-    """Model log S11 and log S12 (with gains, level and noise floor) of both pairs on the grid: (2, F) each."""
+def _grid_log_densities(theta, data: ModelData, deep: bool = False):
+    """Model log S11 and log S12 (with gains, level and noise floor) of both pairs on the grid: (2, F) each;
+    and the deep log S22 (gains and level, no noise) as a third if ``deep``."""
     vx, vy, a = jnp.exp(theta[0]), jnp.exp(theta[1]), jnp.exp(theta[2])
-    log_gains = jnp.stack([theta[3], theta[4]])
-    log_amp = jnp.stack([0.0, theta[5]])
+    log_gains = jnp.stack([theta[3], theta[4]])[:, None]
+    log_amp = jnp.stack([0.0, theta[5]])[:, None]
     log_noise = theta[6]
     log_phi = theta[N_FIXED_PARAMS:]
     d1, d2 = data.depths[0], data.depths[1]
-    s11, s12 = _pair_log_densities(data.grid_omega, vx, vy, a, d1, d2, data.log_k_knots, log_phi)
-    s11 = s11 + log_amp[:, None]
-    s12 = s12 + log_amp[:, None] + log_gains[:, None]
-    return jnp.logaddexp(s11, log_noise), s12                   # shallow white noise floor
+    dens = _pair_log_densities(data.grid_omega, vx, vy, a, d1, d2, data.log_k_knots, log_phi, deep)
+    s11 = jnp.logaddexp(dens[0] + log_amp, log_noise)            # shallow white noise floor
+    s12 = dens[1] + log_amp + log_gains
+    if not deep:
+        return s11, s12
+    return s11, s12, dens[2] + log_amp + 2.0 * log_gains
 
 
 def _window_average(s, data: ModelData):
@@ -259,21 +278,43 @@ def _edge_slope(log_r_grid, log_h, data: ModelData):
     return jnp.exp(hi - log_h) - jnp.exp(lo - log_h)
 
 
-def log_spectra(theta, data: ModelData):
-    """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, as the estimator sees them."""
-    s11, s12 = _grid_log_densities(theta, data)
+def _bin_spectra(theta, data: ModelData):
+    """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, and log S22.1 (2, L) or None."""
+    deep = data.log_c22 is not None
+    dens = _grid_log_densities(theta, data, deep)
+    s11, s12 = dens[0], dens[1]
     bin_s11 = _window_average(s11, data)
-    log_h = _window_average(s12, data) - bin_s11
+    bin_s12 = _window_average(s12, data)
+    log_h = bin_s12 - bin_s11
     if data.centroid_shift is not None:                          # this recording's window term
         log_h = log_h + jnp.log1p(jnp.clip(_edge_slope(s12 - s11, log_h, data) * data.centroid_shift, -0.5, None))
-    return bin_s11, log_h
+    if not deep:
+        return bin_s11, log_h, None
+    # the estimator's S22 - |S12|^2 / S11 of bin averages, with each channel's white noise: the Jensen gap of
+    # a ratio that varies across the bin is part of it, as it is of the measured one
+    n1, n2 = data.log_noise_c22[:, :1], data.log_noise_c22[:, 1:]
+    b11 = jnp.logaddexp(bin_s11, n1)
+    b22 = jnp.logaddexp(_window_average(dens[2], data), n2)
+    coherent = jnp.clip(jnp.exp(2.0 * bin_s12 - b11 - b22), 0.0, 1.0 - 8.0 * jnp.finfo(b22.dtype).eps)
+    return bin_s11, log_h, b22 + jnp.log1p(-coherent) + data.c22_offset
+
+
+def log_spectra(theta, data: ModelData):
+    """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, as the estimator sees them."""
+    s11, log_h, _ = _bin_spectra(theta, data)
+    return s11, log_h
+
+
+def log_conditioned(theta, data: ModelData):
+    """Model log S22.1 (2, L), the conditioned deep PSD as estimated (needs ``data.log_c22``)."""
+    return _bin_spectra(theta, data)[2]
 
 
 @jax.jit
 def ratio_slope(theta, data: ModelData):
     """(2, L) the model's relative slope of the amplitude ratio across each bin (needs ``data.edge_index``):
     the slope ``pair_fit.noise_err_from_slope`` takes, for the joint model."""
-    s11, s12 = _grid_log_densities(theta, data)
+    s11, s12 = _grid_log_densities(theta, data)[:2]
     return _edge_slope(s12 - s11, _window_average(s12, data) - _window_average(s11, data), data)
 
 
@@ -284,12 +325,17 @@ def n_prior_residuals(n_params: int) -> int:
 
 def residuals(theta, data: ModelData):
     """Weighted residuals, flat: shallow log PSDs and log amplitude ratios of both pairs (4 L),
-    then the priors (P + n_knots - 2, see ``n_prior_residuals``)."""
-    s11, h = log_spectra(theta, data)
+    the conditioned deep log PSDs (2 L, only with ``data.log_c22``), then the priors (P + n_knots - 2, see ``n_prior_residuals``)."""
+    s11, h, c22 = _bin_spectra(theta, data)
     r_s = jnp.where(data.mask_s11, (jnp.where(data.mask_s11, data.log_s11, 0.0) - s11) * data.s11_weight, 0.0)
     err = jnp.where(data.mask_h, data.h_err, 1.0)
     r_h = jnp.where(data.mask_h, (jnp.where(data.mask_h, data.log_h, 0.0) - h) / err, 0.0)
+    blocks = [r_s.ravel(), r_h.ravel()]
+    if c22 is not None:
+        m = data.mask_c22
+        blocks.append(jnp.where(m, (jnp.where(m, data.log_c22, 0.0) - jnp.where(m, c22, 0.0)) * data.c22_weight,
+                                0.0).ravel())
     prior = (theta - data.prior_center) * data.prior_inv_sd
     log_phi = theta[N_FIXED_PARAMS:]
     smooth = (log_phi[:-2] - 2.0 * log_phi[1:-1] + log_phi[2:]) * data.smooth_inv_sd
-    return jnp.concatenate([r_s.ravel(), r_h.ravel(), prior, smooth])
+    return jnp.concatenate(blocks + [prior, smooth])

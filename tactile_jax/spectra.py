@@ -42,6 +42,8 @@ from .errors import TactileInputError
 from .prewhiten import filter_gain, whiten_pairs
 
 __all__ = [
+    "conditioned_psd",
+    "neighbour_log_ratio_err",
     "CrossSpectra",
     "AmplitudeRatio",
     "default_nperseg",
@@ -672,6 +674,21 @@ def coherence(spectra: CrossSpectra) -> Array:
     return jnp.where(ok, g2, jnp.zeros_like(g2))
 
 
+def conditioned_psd(spectra: CrossSpectra) -> Array:
+    """Each pair's conditioned deep PSD ``S22.1 = S22 - |S12|^2 / S11``: ``(..., 2, M)``, units^2/Hz.
+
+    The deep probe's power that the shallow one does not explain (Bendat & Piersol's
+    conditioned spectrum; ``S22 (1 - g2)``). For Gaussian data its estimate is
+    independent of ``S11`` and ``S12 / S11`` and is ``chi^2`` with ``2 (K - 1)``
+    degrees of freedom. 0 where ``S11`` is 0. jnp.
+    """
+    s11 = spectra.psd[..., 0::2, :]
+    s22 = spectra.psd[..., 1::2, :]
+    ok = s11 > 0
+    c22 = s22 - jnp.square(jnp.abs(spectra.csd)) / jnp.where(ok, s11, 1.0)
+    return jnp.where(ok & jnp.isfinite(c22), c22, 0.0)
+
+
 @jax.jit
 def amplitude_ratio(spectra: CrossSpectra) -> AmplitudeRatio:
     """Log AMPLITUDE ratio ``log(|S12| / S11)`` of deep to shallow probe, with errors.
@@ -750,6 +767,27 @@ def usable_band(ratio: AmplitudeRatio, *, min_snr=1.0, max_err=0.5, fmin=None, f
     return _usable_band_core(ratio, min_snr, max_err, fmin, fmax, neighbours)
 
 
+def neighbour_log_ratio_err(ratio: AmplitudeRatio, neighbours: int) -> Array:
+    """The log ratio's one-sigma errors from the mean coherence of each bin's ``2 n`` neighbours, not its own.
+
+    A bin's own coherence estimate rises and falls with its own |S12|, so errors
+    taken from it give the bins whose ratio came out high the smaller errors and
+    the larger weights: a weighted fit's slope is then pulled flat and the speed
+    up. The neighbours' coherence carries none of the bin's own noise.
+    ``neighbours = 0``: the bin's own errors (``ratio.log_ratio_err``).
+    """
+    neighbours = _check_int("neighbours", neighbours, minimum=0)
+    if not neighbours:
+        return ratio.log_ratio_err
+    return _log_ratio_err(_neighbour_mean(_without_dc(ratio), neighbours), float(ratio.dof))
+
+
+def _without_dc(ratio: AmplitudeRatio) -> Array:
+    """The coherence with NaN at DC: the segments' mean removal leaves DC no coherence of the signal's, and
+    spectra files often start above it, so a neighbour mean that counts it would differ between the two."""
+    return jnp.where(ratio.omega > 0, ratio.coherence, jnp.nan)
+
+
 def _neighbour_mean(x: Array, n: int) -> Array:
     """Mean of the finite values among the n bins on each side of each bin (itself excluded), last axis."""
     ok = jnp.isfinite(x)
@@ -767,7 +805,7 @@ def _usable_band_core(ratio, min_snr, max_err, fmin, fmax, neighbours=0):
     dof = float(ratio.dof)
     err = ratio.log_ratio_err
     if neighbours:
-        g2 = _neighbour_mean(g2, neighbours)
+        g2 = _neighbour_mean(_without_dc(ratio), neighbours)
         err = _log_ratio_err(g2, dof)
     # Bonferroni over the M bins: with thousands of multitaper bins a per-bin 1 % test
     # would admit dozens of pure-noise bins with small error bars
