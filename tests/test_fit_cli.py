@@ -141,6 +141,12 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     ratio = np.sqrt(row["error_scale"] / direct.error_scale)
     for name in ("vx_err", "a_err"):
         assert row[name] == pytest.approx(getattr(direct, name) * ratio, rel=1e-6), name
+    # --ratio-only: the deep probe's conditioned PSD left out, as FitOptions(conditioned=False)
+    res = runner.invoke(main, ["fit", str(spec), "--out", str(out), "--ratio-only", "--quiet"])
+    assert res.exit_code == 0, res.output
+    (plain,) = read_results(out)
+    ratio_only = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024, conditioned=False))
+    assert plain["vx"] == pytest.approx(ratio_only.vx, rel=1e-6) and plain["vx"] != pytest.approx(row["vx"], rel=1e-6)
 
 
 def test_report_says_fixed_and_undetermined():
