@@ -225,7 +225,7 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg,
             loo = _spectra(x, f, options, nperseg, leave_one_out=True)
             out.update(loo_log_ratio=amplitude_ratio(loo).log_ratio, loo_shallow=loo.psd[:, 0::2])
             if options.conditioned:
-                out.update(loo_c22=jnp.log(jnp.clip(conditioned_psd(loo), 1e-300, None)))
+                out.update(loo_c22=conditioned_psd(loo))
         return out
 
     return jax.vmap(one)(signals, fs, depths, gains)
@@ -548,7 +548,7 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     fit = jax.tree_util.tree_map(lambda t: t[best], fits)
     # the error bars' variance scale from the delete-one-segment jackknife, as ``fit_recording``'s
     *_, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx, overlap,
-                                fit.redchi, log_c22_k=stage["loo_c22"][:, :, idx] if options.conditioned else None)
+                                fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None)
     return fit, free, scale
 
 

@@ -293,7 +293,6 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
 
 def _scene_options(options, scene, model):
     """Recipe (--scene) first, then the flags given on the command line, then --model."""
-
     from click.core import ParameterSource
 
     from .model_select import check_model

@@ -677,8 +677,8 @@ def conditioned_fields(c22, om, psd, omega, dof: float, mask, *, use: bool, nois
     """``joint_model.ModelData``'s S22.1 fields (``FitOptions.conditioned``); jnp, for ``fit`` and the batch.
 
     c22: (2, L) ``spectra.conditioned_psd`` at the fit's bins om (L,), rad/s; psd: (4, M)
-    the four PSDs at omega (M,); mask: (2, L) the ratio's bins. Bins within two of DC
-    are left out (the segments' mean removal reshapes the spectral window there, which
+    the four PSDs at omega (M,); mask: (2, L) the ratio's bins. DC and the first
+    bin above it are left out (the segments' mean removal reshapes the spectral window there, which
     the ratio cancels and S22.1 does not). The white-noise PSDs are the medians of S11
     and S22 above 3/4 of the top frequency; with ``noise_floor`` the model's fitted floor
     is the shallow one. use False: the slots with nothing in them (one compiled model).
@@ -752,9 +752,7 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
     if term is not None and leave_one_out.centroid is not None:
         expected = np.stack([lk.centroid for lk in term.leakage]) - term.shift      # the weights' own centroid
         shift_k = np.where(data.mask_h, np.asarray(leave_one_out.centroid)[:, :, idx] - expected, 0.0)
-    c22_k = None
-    if data.log_c22 is not None and bool(np.any(data.mask_c22)):
-        c22_k = np.log(np.clip(np.asarray(conditioned_psd(leave_one_out))[:, :, idx], 1e-300, None))
+    c22_k = conditioned_psd(leave_one_out) if data.log_c22 is not None and bool(np.any(data.mask_c22)) else None
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
         idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k))
@@ -769,13 +767,13 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
 
 
 def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi, shift_k=None,
-                    log_c22_k=None):
+                    c22_k=None):
     """The delete-one-segment jackknife of a joint fit (jnp; the batch's compiled stage calls it too).
 
     log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
     K delete-one spectra; idx: (L,) the bins of ``data``; overlap: n_segments / dof.
     shift_k: (K, 2, L) their ``data.centroid_shift`` when the model has the window term, else None.
-    log_c22_k: (K, 2, L) their log conditioned deep PSDs when the fit uses them, else None.
+    c22_k: (K, 2, M) their conditioned deep PSDs (``spectra.conditioned_psd``) when the fit uses them, else None.
     Returns the jackknife and unit Laplace variances (P,), (P,), their ratio pooled
     over the free vx, vy, a, and the variance scale of the error bars: the pooled
     ratio, never below ``redchi`` (NaN when there is none).
@@ -784,8 +782,8 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
               "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], 1e-300, None)), 0.0)}
     if shift_k is not None:          # the window term's centroids change with the segment left out too
         fields["centroid_shift"] = jnp.asarray(shift_k)
-    if log_c22_k is not None:
-        fields["log_c22"] = jnp.where(data.mask_c22, jnp.asarray(log_c22_k), 0.0)
+    if c22_k is not None:
+        fields["log_c22"] = jnp.where(data.mask_c22, jnp.log(jnp.clip(c22_k[:, :, idx], 1e-300, None)), 0.0)
     shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
     var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
     pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))
