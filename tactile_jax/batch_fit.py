@@ -188,8 +188,10 @@ def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: in
     return int(np.sort(want)[(want.size - 1) // 2])
 
 
-@partial(jax.jit, static_argnames=("options", "nperseg", "leave_one_out"))
-def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg, leave_one_out: bool = False):
+@partial(jax.jit, static_argnames=("options", "nperseg", "joint"))
+def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg, joint: bool = False):
+    """Per record: spectra, ratio, band and the pair fits' starts; with ``joint``, also what the joint
+    model alone reads (its errors, the conditioned deep PSDs, the jackknife's delete-one spectra)."""
     def one(x, f, d, g):
         spec = _spectra(x, f, options, nperseg)
         ratio = amplitude_ratio(spec)
@@ -212,20 +214,20 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg,
         white = spec.whitening if spec.whitening is not None else jnp.zeros((2, 1), shallow.dtype).at[:, 0].set(1.0)
         # the shallow spectra as the Welch average saw them (prewhitened): the pair model's kernel weights
         log_seen = jnp.log(jnp.clip(whitened_psd(spec)[0::2], 1e-300, None))
+        out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
+                   shallow=shallow, log_seen=log_seen, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
+                   line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
+        if not joint:
+            return out
         # the joint model's errors from the neighbours' coherence, as fit.py's (``spectra.neighbour_log_ratio_err``);
         # the pair model keeps each bin's own: with the neighbours', the flat pair of a fast slip along x
         # (tests/test_batch.py) stopped reading as a runaway and left its record not_converged
-        out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err,
-                   err_joint=neighbour_log_ratio_err(ratio, options.band_neighbours), band=band,
-                   shallow=shallow, log_seen=log_seen, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
-                   line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
-        if options.conditioned:             # the joint model's conditioned deep PSDs (``fit.conditioned_fields``)
-            out.update(c22=conditioned_psd(spec), psd=spec.psd)
-        if leave_one_out:                   # the delete-one-segment spectra of the jackknife (the joint model)
-            loo = _spectra(x, f, options, nperseg, leave_one_out=True)
-            out.update(loo_log_ratio=amplitude_ratio(loo).log_ratio, loo_shallow=loo.psd[:, 0::2])
-            if options.conditioned:
-                out.update(loo_c22=conditioned_psd(loo))
+        out.update(err_joint=neighbour_log_ratio_err(ratio, options.band_neighbours))
+        # the delete-one-segment spectra of the jackknife
+        loo = _spectra(x, f, options, nperseg, leave_one_out=True)
+        out.update(loo_log_ratio=amplitude_ratio(loo).log_ratio, loo_shallow=loo.psd[:, 0::2])
+        if options.conditioned:             # the conditioned deep PSDs (``fit.conditioned_fields``)
+            out.update(c22=conditioned_psd(spec), psd=spec.psd, loo_c22=conditioned_psd(loo))
         return out
 
     return jax.vmap(one)(signals, fs, depths, gains)
@@ -708,8 +710,8 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
         # the default for the recording's N, not for the N - p samples that prewhitening leaves
         # (8192 -> 1024, not 512: coarse bins bias the speed of slow slips, see benchmarks/README.md)
         nperseg = default_nperseg(x.shape[-1])
-    loo = program.model == "joint"
-    stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, leave_one_out=loo)
+    joint = program.model == "joint"
+    stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, joint=joint)
     if program.resolution and program.nperseg is None and options.method == "welch":
         nperseg0 = nperseg
         # the pair model wants MIN_PAIR_BAND_BINS usable bins, the joint model FitOptions.min_band_bins
@@ -720,7 +722,7 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
                                    min_band_bins=floor)
         if finer > nperseg0:
             nperseg = finer
-            stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, leave_one_out=loo)
+            stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, joint=joint)
     program.last_nperseg = 2 * (stage["omega"].shape[-1] - 1)
     stage["fs"] = fs
     i_lo, i_hi, band = (np.asarray(stage[k]) for k in ("i_lo", "i_hi", "band"))
