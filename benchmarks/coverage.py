@@ -7,6 +7,8 @@ and the 1- and 2-sigma intervals of |vx|, |vy| and a are checked against the
 truth. Prints a table, writes coverage.json and coverage.png.
 
     python benchmarks/coverage.py --scenes 120 --out benchmarks/out
+    python benchmarks/coverage.py --scenes 300 --skip 100 --out part2     # resume after scene 99
+    python benchmarks/coverage.py --merge part1/coverage.json part2/coverage.json --out all
 """
 
 from __future__ import annotations
@@ -179,6 +181,33 @@ def figure(rows, path):
     plt.close(fig)
 
 
+def merge(paths, out: Path):
+    """Summarise the rows of several coverage.json files (each scene index once) into ``out``."""
+    rows, options = {}, set()
+    for path in paths:
+        try:
+            d = json.loads(Path(path).read_text())
+            part = d["rows"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise SystemExit(f"{path}: not a coverage.json ({e})") from None
+        options.add(json.dumps(d.get("options", [])))
+        for r in part:
+            if r["i"] in rows:
+                raise SystemExit(f"{path}: scene {r['i']} is also in an earlier file")
+            rows[r["i"]] = r
+    if len(options) > 1:
+        raise SystemExit(f"{', '.join(map(str, paths))}: the runs used different options {sorted(options)}")
+    rows = [rows[i] for i in sorted(rows)]
+    summary = summarize(rows)
+    print(f"# coverage study: {len(rows)} scenes merged from {', '.join(map(str, paths))}")
+    print(json.dumps(summary, indent=1))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "coverage.json").write_text(json.dumps({"summary": summary, "options": json.loads(options.pop()),
+                                                   "merged_from": [str(p) for p in paths], "rows": rows},
+                                                  indent=1, default=str))
+    figure(rows, out / "coverage.png")
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenes", type=int, default=120)
@@ -189,7 +218,13 @@ def main():
                    help="a FitOptions field to change, e.g. --option band_neighbours=3 (repeatable)")
     p.add_argument("--snr", type=float, default=None, help="fix the SNR (dB) instead of drawing it in 30-60")
     p.add_argument("--large-fraction", type=float, default=0.15, help="share of 5-8 mm contacts (default 0.15)")
+    p.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
+                   help="summarise the rows of earlier runs' coverage.json files (a run and its resumed parts) "
+                        "instead of fitting")
     a = p.parse_args()
+    if a.merge:
+        merge(a.merge, Path(a.out))
+        return
     options = FitOptions(**{k: ast.literal_eval(v) for k, v in (o.split("=", 1) for o in a.option)})
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

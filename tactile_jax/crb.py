@@ -20,9 +20,19 @@ bound (its Jacobian is v). Two models:
   ``log_ratio_err`` per bin: the bound that the exact least-squares fit
   (``pair_fit.fit_pair``) can reach.
 - ``joint_crb``: the 2-D joint model (``joint_model``) with its shallow log
-  PSDs (sd 1 / ``s11_weight``) and log ratios (sd ``h_err``); the texture
+  PSDs (sd 1 / ``s11_weight``), log ratios (sd ``h_err``) and, where the data
+  carry them, conditioned deep log PSDs (sd 1 / ``c22_weight``); the texture
   spectrum and other free parameters are nuisances whose uncertainty the
   bound includes. Priors are left out unless ``include_priors``.
+- ``whittle_crb``: the ideal spectral estimator's bound: K averaged complex
+  Gaussian Fourier vectors per bin (the complex-Wishart, Whittle, likelihood),
+  F = K sum_bins tr(S^-1 dS S^-1 dS), of the 4 x 4 matrix of both pairs
+  (``spectral_matrix``), or of the two pairs' 2 x 2 blocks alone
+  (``cross=False``: what per-pair statistics hold, as if the pairs were
+  independent). No spectral window, no leakage: a bound on what any
+  estimator from these bins could reach, against which ``joint_crb`` (the
+  fit's own statistics and measured errors) is compared in
+  benchmarks/information.py.
 
 Everything is pure jnp; enable float64 at the entry point for meaningful bounds.
 """
@@ -37,10 +47,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import joint_model as jm
+from .spectral_matrix import spectral_matrix
 from .pair_fit import _residuals as _pair_residuals
 from .pair_fit import centroid_shift, kernel_log_weights, noise_err
 
-__all__ = ["fisher_information", "bound_covariance", "banded_correlation", "Bound", "pair_crb", "joint_crb"]
+__all__ = ["fisher_information", "bound_covariance", "banded_correlation", "Bound", "pair_crb", "joint_crb",
+           "whittle_crb"]
 
 
 @partial(jax.jit, static_argnames=("residuals", "n_prior"))
@@ -176,14 +188,62 @@ def joint_crb(theta, data: jm.ModelData, free, *, bin_factor=1.0, include_priors
     Bayesian bound); by default only the data count.
     """
     theta = jnp.asarray(theta)
-    # the log-PSD residuals' weight sqrt(K / bin_factor) already counts correlated bins; the ratios' errors do not
+    # the log-PSD residuals' weight sqrt(K / bin_factor) already counts correlated bins; the ratios' and the
+    # conditioned PSDs' weights do not
     fisher = (fisher_information(_joint_log_psd, theta, data, free)
               + fisher_information(_joint_log_ratio, theta, data, free, bin_factor=bin_factor))
+    if data.log_c22 is not None:
+        fisher = fisher + fisher_information(_joint_conditioned, theta, data, free, bin_factor=bin_factor)
     if include_priors:
         fisher = fisher + fisher_information(_joint_priors, theta, data, free)
     cov = bound_covariance(fisher, free)
     sd = jnp.sqrt(jnp.diag(cov))
     return Bound(jnp.exp(theta[:2]) * sd[:2], jnp.exp(theta[2]) * sd[2], cov, fisher)
+
+
+def whittle_crb(theta, data: jm.ModelData, free, *, cross: bool = True, include_priors: bool = False,
+                dof=None, n_s: int = 6001) -> Bound:
+    """Cramer-Rao bound on |vx|, |vy| and a from the bins' full spectral matrix (the ideal estimator).
+
+    theta, free: as ``joint_crb`` (the noise level, parameter 6, is taken as
+    known). data: a joint fit's ``ModelData`` with the conditioned-PSD fields
+    (``FitOptions.conditioned``; ``log_noise_c22`` gives each channel's white
+    noise); its bins with any data (any mask of either pair) are used.
+    cross: the 4 x 4 matrix of both pairs; False keeps the pairs' 2 x 2 blocks
+    (cross-pair entries zeroed), the information of per-pair statistics
+    counted as if the pairs were independent. dof: averages per bin K
+    (default: from ``data.c22_weight`` = sqrt(K - 1)); bins count as
+    independent, as in ``joint_crb``. include_priors: as ``joint_crb``.
+    """
+    if data.log_c22 is None or data.log_noise_c22 is None:
+        raise ValueError("whittle_crb needs the conditioned-PSD fields of the fit's ModelData "
+                         "(FitOptions(conditioned=True))")
+    theta = jnp.asarray(theta)
+    used = np.asarray(data.mask_s11 | data.mask_h | data.mask_c22).any(axis=0)
+    omega = jnp.asarray(np.asarray(data.omega)[used])
+    k = float(data.c22_weight) ** 2 + 1.0 if dof is None else float(dof)
+    free = jnp.asarray(free, bool).at[6].set(False)
+    fisher = _whittle_fisher(theta, omega, data.depths, data.log_k_knots, jnp.ravel(data.log_noise_c22),
+                             free, k, cross, n_s)
+    if include_priors:
+        fisher = fisher + fisher_information(_joint_priors, theta, data, free)
+    cov = bound_covariance(fisher, free)
+    sd = jnp.sqrt(jnp.diag(cov))
+    return Bound(jnp.exp(theta[:2]) * sd[:2], jnp.exp(theta[2]) * sd[2], cov, fisher)
+
+
+@partial(jax.jit, static_argnames=("cross", "n_s"))
+def _whittle_fisher(theta, omega, depths, log_k_knots, log_noise, free, dof, cross, n_s):
+    def matrix(t):
+        s = spectral_matrix(t, omega, depths, log_k_knots, log_noise, n_s=n_s)
+        return s if cross else s * _PAIR_BLOCKS
+    s = matrix(theta)
+    ds = jax.jacfwd(matrix)(theta) * free[None, None, None, :]          # (F, 4, 4, P)
+    a = jnp.einsum("fab,fbcp->facp", jnp.linalg.inv(s), ds)
+    return dof * jnp.einsum("fabp,fbaq->pq", a, a)
+
+
+_PAIR_BLOCKS = np.kron(np.eye(2), np.ones((2, 2)))     # the x and y pairs' 2 x 2 blocks
 
 
 def _joint_priors(theta, data):
@@ -196,3 +256,7 @@ def _joint_log_psd(theta, data):
 
 def _joint_log_ratio(theta, data):
     return jm.residuals(theta, data)[2 * data.omega.shape[0]: 4 * data.omega.shape[0]]
+
+
+def _joint_conditioned(theta, data):
+    return jm.residuals(theta, data)[4 * data.omega.shape[0]: 6 * data.omega.shape[0]]

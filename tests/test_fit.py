@@ -102,6 +102,42 @@ def test_the_conditioned_deep_psd_is_fitted(oblique):
     assert abs(res.vx - scene.velocity[0]) < 0.02 * speed and abs(res.vy - scene.velocity[1]) < 0.02 * speed
 
 
+def test_joint_bound_counts_the_conditioned_psd(oblique):
+    """``crb.joint_crb`` with the priors and no bin correlation, at the fitted parameters, is the fit's own
+    unit Laplace covariance (J^T J)^-1, S22.1 block included; leaving S22.1 out loosens the bound."""
+    from tactile_jax.crb import joint_crb
+    _, res = oblique
+    data, theta, free = res.problem.args, np.asarray(res.problem.theta), np.asarray(res.problem.free)
+    bound = joint_crb(theta, data, free, include_priors=True)
+    unit = np.array([res.vx_err, res.vy_err, res.a_err]) / np.sqrt(res.error_scale)
+    got = np.concatenate([np.asarray(bound.speed_sd), [float(bound.a_sd)]])
+    np.testing.assert_allclose(got, unit, rtol=0.02)
+    ratio_only = joint_crb(theta, data._replace(log_c22=None), free, include_priors=True)
+    assert np.all(np.asarray(ratio_only.speed_sd) > 1.05 * np.asarray(bound.speed_sd)), (ratio_only.speed_sd, got)
+
+
+def test_the_cross_pair_spectra_hold_more_information(oblique):
+    """``spectral_matrix``: its pair entries are ``joint_model``'s line integrals; its x-y entries make the
+    lowest bins of the two pairs coherent, and ``crb.whittle_crb`` counts that information: the full 4 x 4
+    bound is tighter than the pairs' 2 x 2 blocks alone (benchmarks/information.py has the figures)."""
+    from tactile_jax.crb import whittle_crb
+    from tactile_jax.spectral_matrix import spectral_matrix
+    scene, res = oblique
+    data, free = res.problem.args, np.asarray(res.problem.free)
+    theta = np.asarray(res.problem.theta, float).copy()
+    theta[:3] = np.log([scene.velocity[0], scene.velocity[1], scene.a])
+    om = data.omega[2:20]
+    s = np.asarray(spectral_matrix(theta, om, data.depths, data.log_k_knots, np.full(4, -300.0)))
+    _, _, s22 = jm._pair_log_densities(om, *np.exp(theta[:3]), data.depths[0], data.depths[1], data.log_k_knots,
+                                       theta[jm.N_FIXED_PARAMS:], True)
+    np.testing.assert_allclose(np.log(s[:, [1, 3], [1, 3]]).T, np.asarray(s22) + [[0.0], [theta[5]]], atol=5e-3)
+    assert s[0, 0, 2] ** 2 / (s[0, 0, 0] * s[0, 2, 2]) > 0.5                  # x1 and y1 near DC
+    full, pairs = (whittle_crb(theta, data, free, cross=c, include_priors=True) for c in (True, False))
+    sd_full = np.append(np.asarray(full.speed_sd), float(full.a_sd))
+    sd_pairs = np.append(np.asarray(pairs.speed_sd), float(pairs.a_sd))
+    assert np.all(np.isfinite(sd_full)) and np.all(sd_full < 0.95 * sd_pairs), (sd_full, sd_pairs)
+
+
 def test_minor_component_gets_a_skewed_profile_interval():
     # slip 8.5 deg off x: the spectra depend on vy only through vy^2 (the line k.v = omega tilts
     # symmetrically), so vy's likelihood is skewed toward 0 and the Laplace error is too narrow
