@@ -188,14 +188,16 @@ def joint_crb(theta, data: jm.ModelData, free, *, bin_factor=1.0, include_priors
     Bayesian bound); by default only the data count.
     """
     theta = jnp.asarray(theta)
-    # the log-PSD residuals' weight sqrt(K / bin_factor) already counts correlated bins; the ratios' and the
-    # conditioned PSDs' weights do not
-    fisher = (fisher_information(_joint_log_psd, theta, data, free)
-              + fisher_information(_joint_log_ratio, theta, data, free, bin_factor=bin_factor))
-    if data.log_c22 is not None:
-        fisher = fisher + fisher_information(_joint_conditioned, theta, data, free, bin_factor=bin_factor)
+    free = jnp.asarray(free, bool)
+    # one Jacobian of all residuals, sliced into blocks: the log-PSD residuals' weight sqrt(K / bin_factor)
+    # already counts correlated bins; the ratios' and the conditioned PSDs' weights do not
+    jac = _joint_jacobian(theta, data) * free[None, :]
+    n = data.omega.shape[0]
+    n_data = 6 * n if data.log_c22 is not None else 4 * n
+    fisher = jac[:2 * n].T @ jac[:2 * n] + jac[2 * n:n_data].T @ jac[2 * n:n_data] / bin_factor
     if include_priors:
-        fisher = fisher + fisher_information(_joint_priors, theta, data, free)
+        prior = jac[jac.shape[0] - jm.n_prior_residuals(theta.shape[0]):]
+        fisher = fisher + prior.T @ prior
     cov = bound_covariance(fisher, free)
     sd = jnp.sqrt(jnp.diag(cov))
     return Bound(jnp.exp(theta[:2]) * sd[:2], jnp.exp(theta[2]) * sd[2], cov, fisher)
@@ -223,20 +225,21 @@ def whittle_crb(theta, data: jm.ModelData, free, *, cross: bool = True, include_
     omega = jnp.asarray(np.asarray(data.omega)[used])
     k = float(data.c22_weight) ** 2 + 1.0 if dof is None else float(dof)
     free = jnp.asarray(free, bool).at[6].set(False)
+    blocks = jnp.ones((4, 4)) if cross else jnp.asarray(_PAIR_BLOCKS)
     fisher = _whittle_fisher(theta, omega, data.depths, data.log_k_knots, jnp.ravel(data.log_noise_c22),
-                             free, k, cross, n_s)
+                             free, k, blocks, n_s)
     if include_priors:
-        fisher = fisher + fisher_information(_joint_priors, theta, data, free)
+        prior = _joint_jacobian(theta, data)[-jm.n_prior_residuals(theta.shape[0]):] * free[None, :]
+        fisher = fisher + prior.T @ prior
     cov = bound_covariance(fisher, free)
     sd = jnp.sqrt(jnp.diag(cov))
     return Bound(jnp.exp(theta[:2]) * sd[:2], jnp.exp(theta[2]) * sd[2], cov, fisher)
 
 
-@partial(jax.jit, static_argnames=("cross", "n_s"))
-def _whittle_fisher(theta, omega, depths, log_k_knots, log_noise, free, dof, cross, n_s):
-    def matrix(t):
-        s = spectral_matrix(t, omega, depths, log_k_knots, log_noise, n_s=n_s)
-        return s if cross else s * _PAIR_BLOCKS
+@partial(jax.jit, static_argnames=("n_s",))
+def _whittle_fisher(theta, omega, depths, log_k_knots, log_noise, free, dof, blocks, n_s):
+    def matrix(t):      # blocks: (4, 4) ones, or the pairs' blocks (cross-pair entries zeroed)
+        return spectral_matrix(t, omega, depths, log_k_knots, log_noise, n_s=n_s) * blocks
     s = matrix(theta)
     ds = jax.jacfwd(matrix)(theta) * free[None, None, None, :]          # (F, 4, 4, P)
     a = jnp.einsum("fab,fbcp->facp", jnp.linalg.inv(s), ds)
@@ -246,17 +249,4 @@ def _whittle_fisher(theta, omega, depths, log_k_knots, log_noise, free, dof, cro
 _PAIR_BLOCKS = np.kron(np.eye(2), np.ones((2, 2)))     # the x and y pairs' 2 x 2 blocks
 
 
-def _joint_priors(theta, data):
-    return jm.residuals(theta, data)[-jm.n_prior_residuals(theta.shape[0]):]
-
-
-def _joint_log_psd(theta, data):
-    return jm.residuals(theta, data)[: 2 * data.omega.shape[0]]
-
-
-def _joint_log_ratio(theta, data):
-    return jm.residuals(theta, data)[2 * data.omega.shape[0]: 4 * data.omega.shape[0]]
-
-
-def _joint_conditioned(theta, data):
-    return jm.residuals(theta, data)[4 * data.omega.shape[0]: 6 * data.omega.shape[0]]
+_joint_jacobian = jax.jit(jax.jacfwd(jm.residuals))

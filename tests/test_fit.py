@@ -132,7 +132,7 @@ def test_the_cross_pair_spectra_hold_more_information(oblique):
                                        theta[jm.N_FIXED_PARAMS:], True)
     np.testing.assert_allclose(np.log(s[:, [1, 3], [1, 3]]).T, np.asarray(s22) + [[0.0], [theta[5]]], atol=5e-3)
     assert s[0, 0, 2] ** 2 / (s[0, 0, 0] * s[0, 2, 2]) > 0.5                  # x1 and y1 near DC
-    full, pairs = (whittle_crb(theta, data, free, cross=c, include_priors=True) for c in (True, False))
+    full, pairs = (whittle_crb(theta, data, free, cross=c, include_priors=True, n_s=3001) for c in (True, False))
     sd_full = np.append(np.asarray(full.speed_sd), float(full.a_sd))
     sd_pairs = np.append(np.asarray(pairs.speed_sd), float(pairs.a_sd))
     assert np.all(np.isfinite(sd_full)) and np.all(sd_full < 0.95 * sd_pairs), (sd_full, sd_pairs)
