@@ -38,7 +38,7 @@ import optimistix as optx  # noqa: E402
 from scipy.signal import csd  # noqa: E402
 
 from tactile_jax import joint_model as jm  # noqa: E402
-from tactile_jax.crb import bound_covariance  # noqa: E402
+from tactile_jax.crb import bound_covariance, wishart_fisher  # noqa: E402
 from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
 from tactile_jax.scene import Scene, simulate  # noqa: E402
 from tactile_jax.spectral_matrix import spectral_matrix  # noqa: E402
@@ -92,13 +92,7 @@ def whittle_fit(rec, cross=True):
     sol = optx.minimise(neg_log_l, optx.BFGS(rtol=1e-8, atol=1e-8), theta0, max_steps=500, throw=False)
     theta = jnp.where(fr, sol.value, theta0)
 
-    def matrix(t):
-        return model_matrix(t, data, rows, cross)
-
-    s = matrix(theta)
-    ds = jax.jacfwd(matrix)(theta) * fr[None, None, None, :]
-    a = jnp.einsum("lab,lbcp->lacp", jnp.linalg.inv(s), ds)
-    fisher = dof * jnp.einsum("labp,lbaq->pq", a, a)
+    fisher = wishart_fisher(lambda t: model_matrix(t, data, rows, cross), theta, fr, dof)
     jp = jax.jacfwd(lambda t: jm.residuals(t, data)[-n_prior:])(theta) * fr[None]
     sd = np.sqrt(np.diag(np.asarray(bound_covariance(fisher + jp.T @ jp, fr))))
     vx, vy, rad = np.exp(np.asarray(theta[:3]))

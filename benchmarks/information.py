@@ -42,6 +42,7 @@ from coverage import scenes  # noqa: E402
 from tactile_jax.crb import joint_crb, whittle_crb  # noqa: E402
 from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
 from tactile_jax.scene import simulate  # noqa: E402
+from tactile_jax.spectra import _log_ratio_err  # noqa: E402
 from tactile_jax.spectral_matrix import spectral_matrix  # noqa: E402
 
 BOUNDS = ("fit", "fit, ideal coh", "pairs", "4x4")
@@ -69,7 +70,7 @@ def scene_row(i, scene):
     s = np.asarray(spectral_matrix(jnp.asarray(theta), data.omega, data.depths, data.log_k_knots,
                                    jnp.ravel(data.log_noise_c22)))
     coh = np.stack([s[:, 0, 1] ** 2 / (s[:, 0, 0] * s[:, 1, 1]), s[:, 2, 3] ** 2 / (s[:, 2, 2] * s[:, 3, 3])])
-    ideal_err = np.sqrt((1.0 - coh) / (2.0 * k * coh))              # Bendat & Piersol, at the model's coherence
+    ideal_err = np.asarray(_log_ratio_err(jnp.asarray(coh), k))     # Bendat & Piersol, at the model's coherence
     bounds = {
         "fit": joint_crb(theta, data, free, include_priors=True),
         "fit, ideal coh": joint_crb(theta, data._replace(h_err=jnp.asarray(ideal_err)), free, include_priors=True),

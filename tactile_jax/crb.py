@@ -52,7 +52,7 @@ from .pair_fit import _residuals as _pair_residuals
 from .pair_fit import centroid_shift, kernel_log_weights, noise_err
 
 __all__ = ["fisher_information", "bound_covariance", "banded_correlation", "Bound", "pair_crb", "joint_crb",
-           "whittle_crb"]
+           "whittle_crb", "wishart_fisher"]
 
 
 @partial(jax.jit, static_argnames=("residuals", "n_prior"))
@@ -236,14 +236,21 @@ def whittle_crb(theta, data: jm.ModelData, free, *, cross: bool = True, include_
     return Bound(jnp.exp(theta[:2]) * sd[:2], jnp.exp(theta[2]) * sd[2], cov, fisher)
 
 
+def wishart_fisher(matrix: Callable, theta, free, dof):
+    """Fisher information (P, P) of ``dof`` averaged complex Gaussian vectors per bin whose spectral
+    matrix is ``matrix(theta)`` (F, p, p): K sum_bins tr(S^-1 dS_i S^-1 dS_j); fixed parameters get zeros.
+    jnp (trace it inside a jit)."""
+    s = matrix(theta)
+    ds = jax.jacfwd(matrix)(theta) * jnp.asarray(free, s.dtype)[None, None, None, :]     # (F, p, p, P)
+    a = jnp.einsum("fab,fbcp->facp", jnp.linalg.inv(s), ds)
+    return dof * jnp.einsum("fabp,fbaq->pq", a, a)
+
+
 @partial(jax.jit, static_argnames=("n_s",))
 def _whittle_fisher(theta, omega, depths, log_k_knots, log_noise, free, dof, blocks, n_s):
     def matrix(t):      # blocks: (4, 4) ones, or the pairs' blocks (cross-pair entries zeroed)
         return spectral_matrix(t, omega, depths, log_k_knots, log_noise, n_s=n_s) * blocks
-    s = matrix(theta)
-    ds = jax.jacfwd(matrix)(theta) * free[None, None, None, :]          # (F, 4, 4, P)
-    a = jnp.einsum("fab,fbcp->facp", jnp.linalg.inv(s), ds)
-    return dof * jnp.einsum("fabp,fbaq->pq", a, a)
+    return wishart_fisher(matrix, theta, free, dof)
 
 
 _PAIR_BLOCKS = np.kron(np.eye(2), np.ones((2, 2)))     # the x and y pairs' 2 x 2 blocks
