@@ -220,9 +220,12 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
                    "window+gain+noise, hertz.")
 @click.option("--ratio-only", is_flag=True,
               help="Leave out the deep probe's conditioned PSD S22.1 (fit the ratio and shallow PSD alone).")
+@click.option("--cross-pairs", "cross_pairs", type=click.IntRange(0, 2), default=None,
+              help="Fit the y pair conditioned on the x pair, with the x-y cross-spectra (recordings only): "
+                   "0 off, 1 y1 only, 2 both y probes. Default: the fit's (FitOptions.cross_pairs).")
 @_user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
-        quiet, scene=None, model=None, ratio_only=False):
+        quiet, scene=None, model=None, ratio_only=False, cross_pairs=None):
     """Fit slip velocity, contact radius and gains to recordings or spectra files; write one row per record.
 
     FILE is a recording (.h5/.hdf5/.npz with 'signals') or a spectra file (with 'omega').
@@ -253,6 +256,8 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
     options = _scene_options(options, scene, model)
     if ratio_only:
         options = dataclasses.replace(options, conditioned=False)
+    if cross_pairs is not None:
+        options = dataclasses.replace(options, cross_pairs=cross_pairs)
     mcmc_settings = dict(n_walkers=walkers, n_steps=steps, seed=seed) if mcmc else None
 
     rows, failures = [], []

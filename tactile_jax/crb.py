@@ -190,10 +190,10 @@ def joint_crb(theta, data: jm.ModelData, free, *, bin_factor=1.0, include_priors
     theta = jnp.asarray(theta)
     free = jnp.asarray(free, bool)
     # one Jacobian of all residuals, sliced into blocks: the log-PSD residuals' weight sqrt(K / bin_factor)
-    # already counts correlated bins; the ratios' and the conditioned PSDs' weights do not
+    # already counts correlated bins; the ratios', the conditioned PSDs' and the cross-pair chain's do not
     jac = _joint_jacobian(theta, data) * free[None, :]
     n = data.omega.shape[0]
-    n_data = 6 * n if data.log_c22 is not None else 4 * n
+    n_data = (6 * n if data.log_c22 is not None else 4 * n) + (12 * n if data.xy_beta1 is not None else 0)
     fisher = jac[:2 * n].T @ jac[:2 * n] + jac[2 * n:n_data].T @ jac[2 * n:n_data] / bin_factor
     if include_priors:
         prior = jac[jac.shape[0] - jm.n_prior_residuals(theta.shape[0]):]

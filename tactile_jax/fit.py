@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.special
 
-from . import jackknife
+from . import cross_pair, jackknife
 from . import joint_model as jm
 from . import model_select
 from .closed_form import dominant_wavenumber, slope_speed
@@ -32,7 +32,7 @@ from .problem import FitProblem
 from .r_curve import log_g
 from .recording import Recording, validate_recording
 from .sensor import PAPER_SENSOR
-from .prewhiten import filter_gain
+from .prewhiten import filter_gain, filter_response
 from .spectra import (CrossSpectra, amplitude_ratio, conditioned_psd, estimate_spectra, neighbour_log_ratio_err,
                       usable_band, whitened_psd)
 
@@ -95,6 +95,11 @@ class FitOptions:
         the minor speed's and a's scatter at 4-8 cm/s (rms 0.66 -> 0.33 % of |v|, 0.92 -> 0.45 %)
         and vy's at 1-2 cm/s (4.1 -> 2.3 %); benchmarks/README.md, "Session 10". False: the
         ratio and the shallow PSD alone (the same compiled model, S22.1 masked out).
+    cross_pairs: fit the y pair conditioned on the x pair (``cross_pair``), which brings in the
+        cross-pair spectra: 0 off (each pair's spectra as if the pairs were independent), 1 y1 given
+        (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in place of the y pair's ratio
+        and S22.1. Needs spectra with ``xy`` (a recording's; files have none: off there, with a
+        warning). The batch (``batch_fit``) does not build the chain yet.
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
     model: the scene model (``model_select.MODELS``): None (default: slip and contact
@@ -123,6 +128,7 @@ class FitOptions:
     leakage_db: float = 20.0
     window_term: bool = False
     conditioned: bool = True
+    cross_pairs: int = 0
     solver: str = "optimistix"
     window: str = "gaussian"
     model: str | None = None
@@ -155,6 +161,8 @@ class FitResult:
     (likewise for vy). ``error_scale``: the variance scale of the
     Laplace covariance behind every error bar, ``error_method`` how it was found,
     ``jackknife`` its diagnostics (segments, per-parameter variance ratios).
+    ``cross_pairs``: how many blocks of the y pair's chain on the x pair the fit used
+    (``FitOptions.cross_pairs``; 0 where the spectra have no x-y entries).
     """
 
     vx: float | None = None
@@ -202,6 +210,7 @@ class FitResult:
     names: tuple = ()
     error_scale: float | None = None
     error_method: str = ""
+    cross_pairs: int = 0
     jackknife: dict | None = dataclasses.field(default=None, repr=False)
     correlations: np.ndarray | None = None
     texture_x: TextureSection | None = None
@@ -219,7 +228,8 @@ class FitResult:
         row = {name: _plain(getattr(self, name)) for name in RESULT_FIELDS}
         for extra in ("a_lower", "vx_upper", "vy_upper", "vx_lo", "vx_hi", "vx_lo2", "vx_hi2", "vy_lo", "vy_hi",
                       "vy_lo2", "vy_hi2", "gain_ratio_y", "gain_ratio_y_err", "redchi", "n_bins",
-                      "cond", "aic", "bic", "solver", "precision", "model_margin", "error_scale", "error_method"):
+                      "cond", "aic", "bic", "solver", "precision", "model_margin", "error_scale", "error_method",
+                      "cross_pairs"):
             row[extra] = _plain(getattr(self, extra))
         if self.posterior is not None:
             row.update(self.posterior_record())
@@ -612,6 +622,12 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
     data = data._replace(**conditioned_fields(jnp.asarray(c22), jnp.asarray(om), jnp.asarray(spec.psd), spec.omega,
                                               spec.dof, jnp.asarray(mask_h & valid), use=options.conditioned,
                                               noise_floor=options.noise_floor))
+    if options.cross_pairs and spec.xy is not None and band[0].any() and band[1].any():
+        data = data._replace(**chain_fields(spec, idx, jnp.asarray(om), data, options.cross_pairs, grid))
+        res.cross_pairs = int(min(options.cross_pairs, 2))
+    elif options.cross_pairs and spec.xy is None:
+        res.warnings.append("cross_pairs: these spectra have no x-y cross-spectra; the pairs are fitted as if "
+                            "independent")
     term = _window_term(spec, idx, valid) if options.window_term else None
     n_prior = jm.n_prior_residuals(theta0.size)
     # Several starts for the speeds: the single-pair fits mistake a pair that hears only window
@@ -692,8 +708,39 @@ def conditioned_fields(c22, om, psd, omega, dof: float, mask, *, use: bool, nois
     mask = mask & (c22 > 0) & (om >= 1.5 * d_omega)[None, :] & bool(use) & (float(dof) > 2.0)
     return {"log_c22": jnp.where(mask, jnp.log(jnp.where(mask, c22, 1.0)), 0.0), "mask_c22": mask,
             "c22_weight": jnp.asarray(math.sqrt(k1)),
-            "c22_offset": jnp.asarray(float(scipy.special.digamma(k1)) - math.log(k1)),
+            # E log of the estimate less that of S11's, which the model's level absorbs: psi(K-1) - psi(K). For
+            # complex-Wishart (K) spectra S22.1 ~ S22.1 chi^2_2(K-1) / 2K and S11 ~ S11 chi^2_2K / 2K. On white noise
+            # (16 s, Welch, K 28.5) log S22.1 - log S11 came out -0.041 on average; this offset is -0.036, the
+            # psi(K-1) - log(K-1) used until session 12 was -0.018 and left S22.1 2 % low against the model
+            "c22_offset": jnp.asarray(float(scipy.special.digamma(k1) - scipy.special.digamma(k1 + 1.0))),
             "log_noise_c22": noise}
+
+
+def chain_fields(spec: CrossSpectra, idx, om, data: jm.ModelData, blocks: int, grid) -> dict:
+    """``joint_model.ModelData``'s chain fields (``cross_pair``) at the bins ``idx`` (L,) of ``data``, and its
+    masks with the y pair's blocks the chain replaces taken out (``FitOptions.cross_pairs``: 1 or 2 blocks).
+
+    Each block uses the bins of what it replaces (y1's PSD; the y ratio), except DC and the first
+    bin (as ``conditioned_fields``).
+    """
+    est = cross_pair.chain_estimate(spec.psd, spec.csd, spec.xy, spec.dof)
+    weight, offset = cross_pair.chain_offsets(spec.dof)
+    d_omega = spec.omega[1] - spec.omega[0]
+    low = (om >= 1.5 * d_omega)
+    mask = jnp.stack([data.mask_s11[1], data.mask_h[1] & (blocks >= 2)]) & est.ok[:, idx] & low[None]
+    fields = {"xy_beta1": est.beta1[idx], "xy_beta2": est.beta2[idx], "xy_w1": est.w1[idx], "xy_w2": est.w2[idx],
+              "log_xy_c": jnp.where(mask, est.log_c[:, idx], 0.0), "mask_xy": mask,
+              "xy_c_weight": jnp.asarray(weight), "xy_c_offset": jnp.asarray(offset),
+              "mask_s11": data.mask_s11.at[1].set(data.mask_s11[1] & ~mask[0]),
+              "mask_h": data.mask_h.at[1].set(data.mask_h[1] & ~mask[1])}
+    if data.mask_c22 is not None:
+        fields["mask_c22"] = data.mask_c22.at[1].set(data.mask_c22[1] & ~mask[1])
+    if spec.whitening is not None:                    # the signed grid: A(-omega) = conj(A(omega))
+        fs = jnp.asarray(spec.fs)
+        rg, rb = (filter_response(spec.whitening, jnp.asarray(w), fs) for w in (grid, om))
+        fields["xy_white_grid"] = jnp.conj(rg[0]) * rg[1]
+        fields["xy_white_bin"] = jnp.conj(rb[0]) * rb[1]
+    return fields
 
 
 def _edge_index(om, grid) -> np.ndarray:
@@ -753,9 +800,12 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
         expected = np.stack([lk.centroid for lk in term.leakage]) - term.shift      # the weights' own centroid
         shift_k = np.where(data.mask_h, np.asarray(leave_one_out.centroid)[:, :, idx] - expected, 0.0)
     c22_k = conditioned_psd(leave_one_out) if data.log_c22 is not None and bool(np.any(data.mask_c22)) else None
+    chain_k = None
+    if data.xy_beta1 is not None and leave_one_out.xy is not None:
+        chain_k = cross_pair.chain_estimate(leave_one_out.psd, leave_one_out.csd, leave_one_out.xy, spec.dof)
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
-        idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k))
+        idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k, chain_k))
     ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(("vx", "vy", "a"))
               if free[i] and var_unit[i] > 0}
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios,
@@ -767,13 +817,15 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
 
 
 def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi, shift_k=None,
-                    c22_k=None):
+                    c22_k=None, chain_k=None):
     """The delete-one-segment jackknife of a joint fit (jnp; the batch's compiled stage calls it too).
 
     log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
     K delete-one spectra; idx: (L,) the bins of ``data``; overlap: n_segments / dof.
     shift_k: (K, 2, L) their ``data.centroid_shift`` when the model has the window term, else None.
     c22_k: (K, 2, M) their conditioned deep PSDs (``spectra.conditioned_psd``) when the fit uses them, else None.
+    chain_k: their ``cross_pair.ChainEstimate`` (leading axis K) when the fit has the chain, else None (the
+        weights stay those of the full record).
     Returns the jackknife and unit Laplace variances (P,), (P,), their ratio pooled
     over the free vx, vy, a, and the variance scale of the error bars: the pooled
     ratio, never below ``redchi`` (NaN when there is none).
@@ -784,6 +836,10 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
         fields["centroid_shift"] = jnp.asarray(shift_k)
     if c22_k is not None:
         fields["log_c22"] = jnp.where(data.mask_c22, jnp.log(jnp.clip(c22_k[:, :, idx], 1e-300, None)), 0.0)
+    if chain_k is not None:
+        ok = chain_k.ok[:, :, idx]
+        fields.update(xy_beta1=chain_k.beta1[:, idx], xy_beta2=chain_k.beta2[:, idx],
+                      log_xy_c=jnp.where(data.mask_xy & ok, chain_k.log_c[:, :, idx], data.log_xy_c))
     shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
     var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
     pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))

@@ -39,7 +39,7 @@ from ._quadrature import gauss_legendre
 from .r_curve import log_g
 
 __all__ = ["PARAMS", "N_FIXED_PARAMS", "ModelData", "banded_kernel", "param_names", "log_phi_at", "log_spectra",
-           "residuals", "n_prior_residuals", "ratio_slope", "log_conditioned"]
+           "residuals", "n_prior_residuals", "ratio_slope", "log_conditioned", "chain_model"]
 
 #: names of the leading parameters; ``log_phi_j`` follow for the texture knots
 PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise")
@@ -86,11 +86,23 @@ class ModelData(NamedTuple):
     log_c22, mask_c22, c22_weight, c22_offset, log_noise_c22: optional; (2, L) measured log
         conditioned deep PSD S22.1 = S22 - |S12|^2 / S11 of each pair (Bendat & Piersol: the deep
         power the shallow probe does not explain), the bins used, 1 / sd of its log (sqrt(K - 1)),
-        the mean of log(chi^2_2(K-1) / 2(K-1)) its estimate carries (psi(K - 1) - log(K - 1)) and
+        the mean log of its estimate less that of S11's, which the fitted level absorbs (psi(K - 1) - psi(K)), and
         (2, 2) log white-noise PSDs [shallow, deep] of each pair. When given, the residuals
         include S22.1: under 2-D slip the modes on the line k . v = omega decay at different
         |k|, so the pair is not fully coherent, by an amount set by vx, vy and a
         (``log_conditioned``).
+    xy_beta1, xy_beta2, xy_w1, xy_w2, log_xy_c, mask_xy, xy_c_weight, xy_c_offset: optional; the
+        measured chain of ``cross_pair`` at the bins: (L, 2) and (L, 3) complex regression coefficients
+        of y1 on (x1, x2) and of y2 on (x1, x2, y1), their (L, 2, 2), (L, 3, 3) complex weights, (2, L)
+        log residual PSDs, (2, L) the bins used for each block, (2,) 1 / sd of those logs and (2,) their
+        offsets (``cross_pair.chain_offsets``). When given, the residuals include the y pair
+        conditioned on the x pair; the caller leaves the y pair's own blocks it replaces out of their
+        masks (``mask_s11[1]`` for the first block; ``mask_h[1]``, ``mask_c22[1]`` for the second).
+    xy_white_grid, xy_white_bin: with the chain and prewhitening, (F,) and (L,) complex conj(A_x) A_y of
+        the pairs' filters on the (signed) grid and at the bins: the estimator averaged the x-y spectra
+        times this over its window and divided by it at the bin. Where the pairs' filters differ
+        (oblique slip) its phase turns across the window; without it, a came out 1.6 % low at 20 deg,
+        1.2 cm/s, a 0.9 mm (6 seeds, 50 dB). Needs the banded kernel.
     """
 
     omega: jax.Array
@@ -118,6 +130,16 @@ class ModelData(NamedTuple):
     c22_weight: jax.Array | None = None
     c22_offset: jax.Array | None = None
     log_noise_c22: jax.Array | None = None
+    xy_beta1: jax.Array | None = None
+    xy_beta2: jax.Array | None = None
+    xy_w1: jax.Array | None = None
+    xy_w2: jax.Array | None = None
+    log_xy_c: jax.Array | None = None
+    mask_xy: jax.Array | None = None
+    xy_c_weight: jax.Array | None = None
+    xy_c_offset: jax.Array | None = None
+    xy_white_grid: jax.Array | None = None
+    xy_white_bin: jax.Array | None = None
 
 
 def banded_kernel(kernel):
@@ -243,6 +265,55 @@ def _pair_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi, deep: bo
     return s11[order], s12[order], s22[order]
 
 
+def _matrix_log_densities(omega, vx, vy, a, d1, d2, log_k_knots, log_phi):
+    """log of all ten entries of the 4 x 4 spectral matrix of (x1, x2, y1, y2) at omega (F,), without gains
+    or level, on ONE set of nodes: (10, F) in the order x1x1, x1x2, x2x2, y1y1, y1y2, y2y2, x1y1, x1y2, x2y1,
+    x2y2 (``CHAIN_ENTRIES``).
+
+    Channel x(d) weighs the mode k by G(kx; d, a) L(ky), y(d) by G(ky; d, a) L(kx) (``spectral_matrix``).
+    At slow slip x1 and y1 are coherent to 0.99 and more in the lowest bins, and the chain's residual PSDs
+    (``chain_model``) are small differences of these entries: computed with ``_pair_log_densities`` for the
+    autos and a separate rule for the x-y entries, a 2e-3 disagreement made log S_y1.x wrong by 0.9 at
+    6 rad/s (1.5 mm, 4.2 cm/s). On shared nodes the discrete sums keep the Gram structure and the
+    differences are as accurate as the rule. The line is parametrised as ``_pair_log_densities`` (by ky when
+    |vx| >= |vy|) over the union of both pairs' ranges, in six Gauss-Legendre panels split at the kinks
+    (kx = 0, ky = 0) and where either pair's window factor ends.
+    """
+    k_g = _LOG_EDGE / (2.0 * d1)
+    k_l = (3.0 * _LOG_EDGE) ** 0.5 / a
+    by_ky = vx >= vy
+    v_u = jnp.where(by_ky, vx, vy)
+    v_o = jnp.where(by_ky, vy, vx)
+    lo_a, hi_a = _range(omega, v_u, v_o, k_g)                 # the pair sensitive to the solved component
+    lo_a, hi_a = jnp.maximum(lo_a, -k_l), jnp.minimum(hi_a, k_l)
+    lo_b, hi_b = _range(omega, v_u, v_o, k_l)                 # the pair sensitive to u
+    lo_b, hi_b = jnp.maximum(lo_b, -k_g), jnp.minimum(hi_b, k_g)
+    lo, hi = jnp.minimum(lo_a, lo_b), jnp.maximum(hi_a, hi_b)
+    hi = jnp.maximum(hi, lo)
+    safe = jnp.where(v_o > 0, v_o, 1.0)
+    inner = [jnp.zeros_like(omega), jnp.where(v_o > 0, omega / safe, jnp.inf), -k_l + 0.0 * omega, k_l + 0.0 * omega,
+             jnp.where(v_o > 0, (omega - k_l * v_u) / safe, -jnp.inf)]
+    cuts = jnp.sort(jnp.stack([lo] + [jnp.clip(c, lo, hi) for c in inner] + [hi]), axis=0)   # (7, F)
+    x, w = gauss_legendre(_N_NODES)
+    x, w = jnp.asarray(x), jnp.asarray(w)
+    half = 0.5 * (cuts[1:] - cuts[:-1])                                      # (6, F)
+    mid = 0.5 * (cuts[1:] + cuts[:-1])
+    u = jnp.moveaxis(mid[..., None] + half[..., None] * x, 0, 1).reshape(omega.shape[0], -1)     # (F, 6n)
+    wt = jnp.moveaxis(half[..., None] * w, 0, 1).reshape(omega.shape[0], -1)
+    solved = (omega[:, None] - u * v_o) / v_u
+    kx = jnp.where(by_ky, solved, u)
+    ky = jnp.where(by_ky, u, solved)
+    base = _log_phi(kx, ky, log_k_knots, log_phi) + jnp.log(jnp.clip(wt, 1e-300, None)) - jnp.log(v_u)
+    base = jnp.where(wt <= 0, -2e4, base)
+    lx, ly = -jnp.square(a * kx) / 6.0, -jnp.square(a * ky) / 6.0
+    ch = [log_g(kx, d1, a) + ly, log_g(kx, d2, a) + ly, log_g(ky, d1, a) + lx, log_g(ky, d2, a) + lx]
+    return jnp.maximum(jnp.stack([logsumexp(base + ch[i] + ch[j], axis=-1) for i, j in CHAIN_ENTRIES]), -1e4)
+
+
+#: (channel, channel) of each entry of ``_matrix_log_densities``, channels (x1, x2, y1, y2)
+CHAIN_ENTRIES = ((0, 0), (0, 1), (1, 1), (2, 2), (2, 3), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3))
+
+
 def _grid_log_densities(theta, data: ModelData, deep: bool = False):
     """Model log S11 and log S12 (with gains, level and noise floor) of both pairs on the grid: (2, F) each;
     and the deep log S22 (gains and level, no noise) as a third if ``deep``."""
@@ -260,15 +331,18 @@ def _grid_log_densities(theta, data: ModelData, deep: bool = False):
     return s11, s12, dens[2] + log_amp + 2.0 * log_gains
 
 
-def _window_average(s, data: ModelData):
-    """(2, L) log of each bin's spectral-window average of the grid density exp(s) (2, F), as estimated."""
+def _window_average(s, data: ModelData, white=None):
+    """(C, L) log of each bin's spectral-window average of the grid density exp(s) (C, F), as estimated.
+
+    white: (C, F), (C, L) log |A|^2 on the grid and at the bins; default the pairs' (C = 2)."""
+    white_grid, white_bin = (data.log_white_grid, data.log_white_bin) if white is None else white
     if data.kernel_index is not None:                            # banded: J grid points per bin
         idx, log_w = data.kernel_index, data.kernel_log_w
-        return logsumexp(log_w[None] + (s + data.log_white_grid)[:, idx], axis=-1) - data.log_white_bin
+        return logsumexp(log_w[None] + (s + white_grid)[:, idx], axis=-1) - white_bin
     log_kernel = jnp.log(jnp.clip(data.kernel, 1e-300, None))  # dense (L, F) kernel
     log_kernel = jnp.where(data.kernel > 0, log_kernel, -2e4)
-    terms = log_kernel[None] + s[:, None, :] + data.log_white_grid[:, None, :]
-    return logsumexp(terms, axis=-1) - data.log_white_bin
+    terms = log_kernel[None] + s[:, None, :] + white_grid[:, None, :]
+    return logsumexp(terms, axis=-1) - white_bin
 
 
 def _edge_slope(log_r_grid, log_h, data: ModelData):
@@ -299,6 +373,77 @@ def _bin_spectra(theta, data: ModelData):
     return bin_s11, log_h, b22 + jnp.log1p(-coherent) + data.c22_offset
 
 
+def _bin_matrix(theta, data: ModelData):
+    """(L, 4, 4) the model's Hermitian (real without ``xy_white_grid``) spectral matrix of (x1, x2, y1, y2)
+    at the bins, as estimated (spectral-window averages, white noise on the diagonal), divided by exp(ref),
+    and ref (L,) = log S_x1x1."""
+    vx, vy, a = jnp.exp(theta[0]), jnp.exp(theta[1]), jnp.exp(theta[2])
+    dens = _matrix_log_densities(data.grid_omega, vx, vy, a, data.depths[0], data.depths[1], data.log_k_knots,
+                                 theta[N_FIXED_PARAMS:])
+    # gains and levels: x2 has gx, y1 the level ay (power), y2 both ay and gy (amplitudes: half the power's log)
+    amp = jnp.stack([0.0, theta[3], 0.5 * theta[5], 0.5 * theta[5] + theta[4]])
+    level = jnp.stack([amp[i] + amp[j] for i, j in CHAIN_ENTRIES])[:, None]
+    dens = dens + level
+    noise = jnp.stack([theta[6], data.log_noise_c22[0, 1], theta[6], data.log_noise_c22[1, 1]])    # [x1, x2, y1, y2]
+    noise = jnp.maximum(noise, jnp.ravel(data.log_noise_c22))     # the fitted shallow floor, or the measured one
+    pair = dens[:6].reshape(2, 3, -1)                             # [pair][11, 12, 22] on the grid
+    auto = [_window_average(pair[:, k], data) for k in range(3)]  # (2, L) each
+    b11 = jnp.logaddexp(auto[0], noise[0::2, None])
+    b22 = jnp.logaddexp(auto[2], noise[1::2, None])
+    b12 = auto[1]
+    ref = b11[0]
+    xy = dens[6:]
+    if data.xy_white_grid is None:
+        white = (0.5 * (data.log_white_grid[0] + data.log_white_grid[1]),
+                 0.5 * (data.log_white_bin[0] + data.log_white_bin[1]))
+        bxy = _window_average(xy, data, (jnp.broadcast_to(white[0], xy.shape),
+                                         jnp.broadcast_to(white[1], (4,) + white[1].shape)))
+        cxy = jnp.exp(bxy - ref)
+    else:                                                        # complex weights conj(A_x) A_y (banded kernel)
+        terms = data.kernel_log_w[None] + xy[:, data.kernel_index]                # (4, L, J)
+        top = jnp.max(terms, axis=-1)
+        avg = jnp.sum(jnp.exp(terms - top[..., None]) * data.xy_white_grid[data.kernel_index], axis=-1)
+        cxy = avg / data.xy_white_bin * jnp.exp(top - ref)
+    e = lambda v: jnp.exp(v - ref)                                # noqa: E731
+    c = lambda v: jnp.conj(v)                                     # noqa: E731
+    rows = [[e(b11[0]), e(b12[0]), cxy[0], cxy[1]],
+            [e(b12[0]), e(b22[0]), cxy[2], cxy[3]],
+            [c(cxy[0]), c(cxy[2]), e(b11[1]), e(b12[1])],
+            [c(cxy[1]), c(cxy[3]), e(b12[1]), e(b22[1])]]
+    rows = [[jnp.asarray(v, cxy.dtype) for v in r] for r in rows]
+    return jnp.moveaxis(jnp.stack([jnp.stack(r) for r in rows]), -1, 0), ref
+
+
+def chain_model(theta, data: ModelData):
+    """The model's chain (``cross_pair``): beta1 (L, 2), beta2 (L, 3) (complex with ``xy_white_grid``), and
+    log residual PSDs (2, L)."""
+    m, ref = _bin_matrix(theta, data)
+    ok = data.mask_xy.any(axis=0)[:, None, None]
+    m = jnp.where(ok, m, jnp.eye(4))                             # unused bins: finite, gradients NaN-free
+    out = []
+    for target, n in ((2, 2), (3, 3)):
+        s_uu, s_ut = m[:, :n, :n], m[:, :n, target]
+        beta = jnp.linalg.solve(s_uu, s_ut[..., None])[..., 0]
+        c = jnp.real(m[:, target, target] - jnp.sum(jnp.conj(s_ut) * beta, axis=-1))
+        c = jnp.maximum(c, 64.0 * jnp.finfo(c.dtype).eps * jnp.real(m[:, target, target]))
+        out.append((beta, jnp.log(c) + ref))
+    return out[0][0], out[1][0], jnp.stack([out[0][1], out[1][1]])
+
+
+def _chain_residuals(theta, data: ModelData):
+    """The chain's residuals, flat: (L, 4) and (L, 6) whitened coefficients, then (2, L) log residual PSDs."""
+    beta1, beta2, log_c = chain_model(theta, data)
+    blocks = []
+    for b, (meas, w, model) in enumerate(((data.xy_beta1, data.xy_w1, beta1), (data.xy_beta2, data.xy_w2, beta2))):
+        m = data.mask_xy[b][:, None]
+        z = jnp.einsum("lij,lj->li", w, jnp.where(m, meas - model, 0.0))
+        blocks.append(jnp.where(m, jnp.concatenate([z.real, z.imag], -1), 0.0).ravel())
+    m = data.mask_xy
+    r_c = jnp.where(m, (jnp.where(m, data.log_xy_c, 0.0) - jnp.where(m, log_c + data.xy_c_offset[:, None], 0.0))
+                    * data.xy_c_weight[:, None], 0.0)
+    return blocks + [r_c.ravel()]
+
+
 def log_spectra(theta, data: ModelData):
     """Model log S11 (2, L) and log|S12|/S11 (2, L) at the bins, as the estimator sees them."""
     s11, log_h, _ = _bin_spectra(theta, data)
@@ -325,7 +470,9 @@ def n_prior_residuals(n_params: int) -> int:
 
 def residuals(theta, data: ModelData):
     """Weighted residuals, flat: shallow log PSDs and log amplitude ratios of both pairs (4 L),
-    the conditioned deep log PSDs (2 L, only with ``data.log_c22``), then the priors (P + n_knots - 2, see ``n_prior_residuals``)."""
+    the conditioned deep log PSDs (2 L, only with ``data.log_c22``), the y pair conditioned on the x pair
+    (12 L, only with ``data.xy_beta1``: ``_chain_residuals``), then the priors (P + n_knots - 2, see
+    ``n_prior_residuals``)."""
     s11, h, c22 = _bin_spectra(theta, data)
     r_s = jnp.where(data.mask_s11, (jnp.where(data.mask_s11, data.log_s11, 0.0) - s11) * data.s11_weight, 0.0)
     err = jnp.where(data.mask_h, data.h_err, 1.0)
@@ -335,6 +482,8 @@ def residuals(theta, data: ModelData):
         m = data.mask_c22
         blocks.append(jnp.where(m, (jnp.where(m, data.log_c22, 0.0) - jnp.where(m, c22, 0.0)) * data.c22_weight,
                                 0.0).ravel())
+    if data.xy_beta1 is not None:
+        blocks += _chain_residuals(theta, data)
     prior = (theta - data.prior_center) * data.prior_inv_sd
     log_phi = theta[N_FIXED_PARAMS:]
     smooth = (log_phi[:-2] - 2.0 * log_phi[1:-1] + log_phi[2:]) * data.smooth_inv_sd

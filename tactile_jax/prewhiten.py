@@ -17,7 +17,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-__all__ = ["burg_ar", "whiten_pairs", "filter_gain"]
+__all__ = ["burg_ar", "whiten_pairs", "filter_gain", "filter_response"]
 
 
 def burg_ar(x, order: int):
@@ -60,8 +60,15 @@ def whiten_pairs(signals, order: int):
 
 
 @jax.jit
-def filter_gain(coeffs, omega, fs):
-    """|A(exp(i omega / fs))|^2 of filters (..., order + 1) at omega (M,) rad/s: shape (..., M)."""
+def filter_response(coeffs, omega, fs):
+    """A(exp(i omega / fs)) = sum_k a_k exp(-i k omega / fs) of filters (..., order + 1) at omega (M,) rad/s:
+    complex, shape (..., M)."""
     k = jnp.arange(coeffs.shape[-1])
     phase = jnp.exp(-1j * jnp.outer(omega / fs, k))          # (M, p + 1)
-    return jnp.abs(jnp.einsum("...k,mk->...m", coeffs.astype(phase.dtype), phase)) ** 2
+    return jnp.einsum("...k,mk->...m", coeffs.astype(phase.dtype), phase)
+
+
+@jax.jit
+def filter_gain(coeffs, omega, fs):
+    """|A(exp(i omega / fs))|^2 of filters (..., order + 1) at omega (M,) rad/s: shape (..., M)."""
+    return jnp.abs(filter_response(coeffs, omega, fs)) ** 2

@@ -39,7 +39,7 @@ from scipy.signal import get_window
 from scipy.signal.windows import dpss
 
 from .errors import TactileInputError
-from .prewhiten import filter_gain, whiten_pairs
+from .prewhiten import filter_gain, filter_response, whiten_pairs
 
 __all__ = [
     "conditioned_psd",
@@ -117,6 +117,11 @@ class CrossSpectra(NamedTuple):
             are those of the log ratio's errors too (``crb.pair_crb``;
             benchmarks/README.md, "Session 9"). A tuple of Python floats; ()
             for spectra read from a file.
+        xy: ``(..., 4, M)`` complex cross-spectral densities ``E[conj(X_i) Y_j]``
+            between the pairs, in the order (x1 y1, x1 y2, x2 y1, x2 y2),
+            units^2 / Hz: under slow slip both pairs hear the modes of small
+            |k| and these carry what the pairs alone do not (``xy_chain``).
+            None for spectra read from a file.
     """
 
     freq: Array
@@ -133,6 +138,7 @@ class CrossSpectra(NamedTuple):
     centroid: Array | None = None
     spread: Array | None = None
     bin_corr: tuple = ()
+    xy: Array | None = None
 
 
 class AmplitudeRatio(NamedTuple):
@@ -162,9 +168,9 @@ class AmplitudeRatio(NamedTuple):
 # Arrays are the leaves; counts and names are static metadata.
 jax.tree_util.register_pytree_node(
     CrossSpectra,
-    lambda s: ((s.freq, s.omega, s.psd, s.csd, s.whitening, s.fs, s.centroid, s.spread),
+    lambda s: ((s.freq, s.omega, s.psd, s.csd, s.whitening, s.fs, s.centroid, s.spread, s.xy),
                (s.n_segments, s.dof, s.method, s.bin_factor, s.kernel, s.bin_corr)),
-    lambda aux, leaves: CrossSpectra(*leaves[:4], *aux[:5], *leaves[4:], bin_corr=aux[5]),
+    lambda aux, leaves: CrossSpectra(*leaves[:4], *aux[:5], *leaves[4:8], bin_corr=aux[5], xy=leaves[8]),
 )
 jax.tree_util.register_pytree_node(
     AmplitudeRatio,
@@ -358,17 +364,20 @@ def _detrend(seg: Array, kind: str) -> Array:
     return seg
 
 
-def _segment_products(spec: Array) -> tuple[Array, Array]:
-    """Per-segment |X|^2 of the four channels and conj(X1) X2 of the two pairs, from ``spec`` (..., 4, K, M)."""
-    return jnp.square(spec.real) + jnp.square(spec.imag), jnp.conj(spec[..., 0::2, :, :]) * spec[..., 1::2, :, :]
+def _segment_products(spec: Array) -> tuple[Array, Array, Array]:
+    """Per-segment |X|^2 of the four channels, conj(X1) X2 of the two pairs and conj(X_i) Y_j between them
+    (``CrossSpectra.xy``), from ``spec`` (..., 4, K, M)."""
+    x, y = spec[..., 0:2, None, :, :], spec[..., None, 2:4, :, :]
+    xy = (jnp.conj(x) * y).reshape(spec.shape[:-3] + (4,) + spec.shape[-2:])
+    return jnp.square(spec.real) + jnp.square(spec.imag), jnp.conj(spec[..., 0::2, :, :]) * spec[..., 1::2, :, :], xy
 
 
-def _pair_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
+def _pair_spectra(spec: Array, scale: Array) -> tuple[Array, Array, Array]:
     """Average |X|^2 and conj(X1) X2 over axis -2 of ``spec`` (..., 4, K, M) and scale."""
     return tuple(jnp.mean(x, axis=-2) * scale for x in _segment_products(spec))
 
 
-def _leave_one_out_spectra(spec: Array, scale: Array) -> tuple[Array, Array]:
+def _leave_one_out_spectra(spec: Array, scale: Array) -> tuple[Array, Array, Array]:
     """Delete-one averages of ``_pair_spectra``: a new leading axis of K, averaging all segments but k."""
     return tuple(_drop_one(x) * scale for x in _segment_products(spec))
 
@@ -428,9 +437,9 @@ def _welch_core(x, fs, window, dtaper, *, nperseg: int, step: int, n_segments: i
     seg = _detrend(seg, detrend)
     spec = jnp.fft.rfft(seg * window, axis=-1)  # (..., 4, K, M)
     scale = jnp.asarray(_onesided_factor(nperseg), dtype) / (fs * jnp.sum(jnp.square(window)))
-    psd, csd = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
+    psd, csd, xy = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
     freq, omega = _freq_axis(fs, nperseg, dtype)
-    return (freq, omega, psd, csd) + _centroid(seg, window, dtaper, leave_one_out)
+    return (freq, omega, psd, csd, xy) + _centroid(seg, window, dtaper, leave_one_out)
 
 
 @functools.partial(jax.jit, static_argnames=("nfft", "leave_one_out"))
@@ -443,9 +452,9 @@ def _multitaper_core(x, fs, tapers, *, nfft: int, leave_one_out=False):
     energy = jnp.sum(jnp.square(tapers), axis=-1)[:, None]  # (K, 1)
     spec = spec / jnp.sqrt(energy).astype(spec.dtype)
     scale = jnp.asarray(_onesided_factor(nfft), dtype) / fs
-    psd, csd = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
+    psd, csd, xy = (_leave_one_out_spectra if leave_one_out else _pair_spectra)(spec, scale)
     freq, omega = _freq_axis(fs, nfft, dtype)
-    return freq, omega, psd, csd
+    return freq, omega, psd, csd, xy
 
 
 # ---------------------------------------------------------------------------
@@ -518,14 +527,14 @@ def welch_spectra(signals, fs, *, nperseg=None, noverlap=None, window="hann", de
     step = nperseg - noverlap
     n_segments = (n_samples - nperseg) // step + 1
     _check_leave_one_out(leave_one_out, n_segments)
-    freq, omega, psd, csd, centroid, spread = _welch_core(
+    freq, omega, psd, csd, xy, centroid, spread = _welch_core(
         x, fs, w, _derivative_taper(w), nperseg=nperseg, step=step, n_segments=n_segments, detrend=detrend,
         leave_one_out=bool(leave_one_out)
     )
     rho = _bin_rho(w[None, :], nperseg)
     return CrossSpectra(freq, omega, psd, csd, n_segments, _welch_dof(w, step, n_segments), "welch",
                         _bin_factor(rho), _spectral_kernel(w[None, :], nperseg, 3.0),
-                        centroid=centroid, spread=spread, bin_corr=_bin_corr(rho))
+                        centroid=centroid, spread=spread, bin_corr=_bin_corr(rho), xy=xy)
 
 
 def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None, leave_one_out: bool = False) -> CrossSpectra:
@@ -582,11 +591,11 @@ def multitaper_spectra(signals, fs, *, nw=4.0, n_tapers=None, nfft=None, leave_o
         raise TactileInputError(f"nfft={nfft} must be at least N={n_samples}", code="bad_setting")
     _check_leave_one_out(leave_one_out, n_tapers)
     tapers = _dpss_tapers(n_samples, nw, n_tapers)
-    freq, omega, psd, csd = _multitaper_core(x, fs, tapers, nfft=nfft, leave_one_out=bool(leave_one_out))
+    freq, omega, psd, csd, xy = _multitaper_core(x, fs, tapers, nfft=nfft, leave_one_out=bool(leave_one_out))
     rho = _bin_rho(tapers, nfft)
     return CrossSpectra(freq, omega, psd, csd, n_tapers, float(n_tapers), "multitaper",
                         _bin_factor(rho), _spectral_kernel(tapers, nfft, math.ceil(nw * nfft / n_samples) + 1.0),
-                        bin_corr=_bin_corr(rho))
+                        bin_corr=_bin_corr(rho), xy=xy)
 
 
 _ESTIMATORS = {"welch": welch_spectra, "multitaper": multitaper_spectra}
@@ -632,8 +641,12 @@ def estimate_spectra(signals, fs, *, method="welch", prewhiten: int | None = Non
 @jax.jit
 def _unwhiten(spec: CrossSpectra, coeffs, fs) -> CrossSpectra:
     gain = filter_gain(coeffs, spec.omega, fs).astype(spec.psd.dtype)     # (..., 2, M)
+    xy = spec.xy
+    if xy is not None:              # the pairs' filters differ: conj(A_x X) A_y Y = conj(A_x) A_y conj(X) Y
+        resp = filter_response(coeffs, spec.omega, fs)
+        xy = xy / jnp.repeat(jnp.conj(resp[..., 0:1, :]) * resp[..., 1:2, :], 4, axis=-2)
     return spec._replace(psd=spec.psd / jnp.repeat(gain, 2, axis=-2), csd=spec.csd / gain,
-                         whitening=coeffs, fs=fs)
+                         whitening=coeffs, fs=fs, xy=xy)
 
 
 # ---------------------------------------------------------------------------

@@ -67,6 +67,8 @@ def test_welch_matches_scipy(kw):
     np.testing.assert_allclose(s.psd, psd, rtol=1e-10, atol=1e-13 * np.max(psd))
     scale = np.max(np.abs(csd))
     np.testing.assert_allclose(s.csd, csd, rtol=1e-10, atol=1e-13 * scale)
+    _, xy = ss.csd(sig[..., [0, 0, 1, 1], :], sig[..., [2, 3, 2, 3], :], FS, **kw)     # x_i with y_j
+    np.testing.assert_allclose(s.xy, xy, rtol=1e-10, atol=1e-13 * np.max(np.abs(xy)))
     g2 = np.asarray(coherence(s))
     # DC coherence of a detrended record is a ratio of rounding noise: compare it only without detrending
     first = 0 if kw.get("detrend", "constant") is False else 1
@@ -308,6 +310,13 @@ def test_burg_recovers_ar2_and_prewhitening_keeps_ratio():
     mid = slice(20, 400)
     ratio_psd = np.asarray(white.psd)[0, mid] / np.asarray(plain.psd)[0, mid]
     assert np.median(ratio_psd) == pytest.approx(1.0, abs=0.05)
+    # the x-y spectra are restored too, although the pairs' filters (phases) differ: y = a delayed, filtered x
+    y = np.convolve(x, [0.2, 0.5, 0.3])[:n]
+    sig = _pairs(x, 0.3 * x, y + 0.01 * rng.standard_normal(n), 0.5 * y)
+    plain, white = estimate_spectra(sig, FS), estimate_spectra(sig, FS, prewhiten=8)
+    ratio_xy = np.asarray(white.xy)[0, mid] / np.asarray(plain.xy)[0, mid]
+    assert np.median(np.abs(ratio_xy)) == pytest.approx(1.0, abs=0.05)
+    assert np.median(np.abs(np.angle(ratio_xy))) < 0.05
     with pytest.raises(TactileInputError) as err:
         estimate_spectra(sig[:, :20], FS, prewhiten=8)
     assert err.value.code == "too_short"
@@ -323,6 +332,7 @@ def test_leave_one_out_spectra_average_to_the_estimate(method):
     assert (loo.n_segments, loo.dof) == (k, full.dof)
     np.testing.assert_allclose(np.mean(loo.psd, axis=0), full.psd, rtol=1e-10)
     np.testing.assert_allclose(np.mean(loo.csd, axis=0), full.csd, rtol=1e-9, atol=1e-12 * np.abs(full.csd).max())
+    np.testing.assert_allclose(np.mean(loo.xy, axis=0), full.xy, rtol=1e-9, atol=1e-12 * np.abs(full.xy).max())
     with pytest.raises(TactileInputError, match="leave_one_out"):
         welch_spectra(x, 1000.0, nperseg=2048, leave_one_out=True)
 
