@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.special
 
-__all__ = ["ChainEstimate", "chain_matrix", "chain_estimate", "chain_offsets"]
+__all__ = ["ChainEstimate", "chain_matrix", "chain_estimate", "chain_offsets", "regression"]
 
 #: the chain's blocks: (target channel, regressor channels) in (x1, x2, y1, y2) indices
 BLOCKS = ((2, (0, 1)), (3, (0, 1, 2)))
@@ -73,8 +73,14 @@ def chain_matrix(psd, csd, xy):
              [z, z, psd[..., 2], csd[..., 1]],
              [z, z, z, psd[..., 3]]]
     u = jnp.stack([jnp.stack(row, -1) for row in upper], -2).astype(xy.dtype)
-    lower = jnp.conj(jnp.swapaxes(jnp.triu(u, 1), -1, -2))
-    return u * jnp.triu(jnp.ones((4, 4)))[..., :, :] + lower
+    return u + jnp.conj(jnp.swapaxes(jnp.triu(u, 1), -1, -2))    # u is zero below its diagonal
+
+
+def regression(s_uu, s_ut, s_tt):
+    """beta = S_uu^-1 S_u,t (..., n) and the residual PSD S_t.u = S_tt - S_u,t^H beta (...), real: the
+    chain's step for the measured matrices here and the model's (``joint_model.chain_model``)."""
+    beta = jnp.linalg.solve(s_uu, s_ut[..., None])[..., 0]
+    return beta, jnp.real(s_tt - jnp.sum(jnp.conj(s_ut) * beta, axis=-1))
 
 
 def _block(m, target, regressors, dof):
@@ -86,8 +92,7 @@ def _block(m, target, regressors, dof):
     s_uu = jnp.where(ok[..., None, None], s_uu, jnp.eye(r.size))
     s_ut = jnp.where(ok[..., None], s_ut, 0.0)
     chol = jnp.linalg.cholesky(s_uu)
-    beta = jnp.linalg.solve(s_uu, s_ut[..., None])[..., 0]
-    c = jnp.real(m[..., target, target] - jnp.sum(jnp.conj(s_ut) * beta, axis=-1))
+    beta, c = regression(s_uu, s_ut, m[..., target, target])
     ok = ok & jnp.isfinite(c) & (c > 0) & jnp.all(jnp.isfinite(chol), axis=(-1, -2))
     c_safe = jnp.where(ok, c, 1.0)
     w = jnp.sqrt(2.0 * (dof - r.size) / c_safe)[..., None, None] * jnp.conj(jnp.swapaxes(chol, -1, -2))

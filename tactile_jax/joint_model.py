@@ -36,6 +36,7 @@ import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
 from ._quadrature import gauss_legendre
+from .cross_pair import regression
 from .r_curve import log_g
 
 __all__ = ["PARAMS", "N_FIXED_PARAMS", "ModelData", "banded_kernel", "param_names", "log_phi_at", "log_spectra",
@@ -422,9 +423,7 @@ def chain_model(theta, data: ModelData):
     m = jnp.where(ok, m, jnp.eye(4))                             # unused bins: finite, gradients NaN-free
     out = []
     for target, n in ((2, 2), (3, 3)):
-        s_uu, s_ut = m[:, :n, :n], m[:, :n, target]
-        beta = jnp.linalg.solve(s_uu, s_ut[..., None])[..., 0]
-        c = jnp.real(m[:, target, target] - jnp.sum(jnp.conj(s_ut) * beta, axis=-1))
+        beta, c = regression(m[:, :n, :n], m[:, :n, target], m[:, target, target])
         c = jnp.maximum(c, 64.0 * jnp.finfo(c.dtype).eps * jnp.real(m[:, target, target]))
         out.append((beta, jnp.log(c) + ref))
     return out[0][0], out[1][0], jnp.stack([out[0][1], out[1][1]])
