@@ -50,7 +50,8 @@ def scenes(n: int, seed: int = 2026, large_fraction: float = 0.15, snr_db: float
 
 
 def run(n: int, options: FitOptions = FitOptions(), seed: int = 2026, verbose: bool = True, skip: int = 0,
-        large_fraction: float = 0.15, snr_db: float | None = None):
+        large_fraction: float = 0.15, snr_db: float | None = None, on_row=None):
+    """Fit the scenes from ``skip`` to ``n``; ``on_row(rows)`` after each (a long run's partial file)."""
     rows = []
     for i, scene in scenes(n, seed, large_fraction, snr_db):
         if i < skip:
@@ -73,6 +74,8 @@ def run(n: int, options: FitOptions = FitOptions(), seed: int = 2026, verbose: b
         rows.append(row)
         if verbose:
             print(_line(row), flush=True)
+        if on_row is not None:
+            on_row(rows)
     return rows
 
 
@@ -231,7 +234,12 @@ def main():
     print(f"# coverage study: {a.scenes} scenes, seed {a.seed}, SNR {a.snr or '30-60'} dB, "
           f"large contacts {a.large_fraction:.0%}; {platform.machine()} {platform.processor()}, "
           f"jax {jax.__version__}, numpy {np.__version__}" + (f"; options {a.option}" if a.option else ""))
-    rows = run(a.scenes, options, seed=a.seed, skip=a.skip, large_fraction=a.large_fraction, snr_db=a.snr)
+    def save_partial(rows):             # an interrupted run keeps its rows (``--merge`` reads them)
+        (out / "coverage.json").write_text(json.dumps({"partial": True, "options": a.option, "rows": rows},
+                                                      indent=1, default=str))
+
+    rows = run(a.scenes, options, seed=a.seed, skip=a.skip, large_fraction=a.large_fraction, snr_db=a.snr,
+               on_row=save_partial)
     summary = summarize(rows)
     print(json.dumps(summary, indent=1))
     (out / "coverage.json").write_text(json.dumps({"summary": summary, "options": a.option, "rows": rows}, indent=1,

@@ -156,6 +156,8 @@ def test_minor_component_gets_a_skewed_profile_interval():
     assert "profile-likelihood" in res.message
 
 
+@pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
+                    reason="its own bin-count bucket compiles (~55 s beside another worker): set TACTILE_JAX_SLOW=1")
 def test_slow_slip_on_a_short_recording_gets_enough_bins():
     """8 s, 30 dB, 1.5 cm/s along x: the slope rule's segment left the joint fit 6 usable bins (5 + 1)
     and a poor_fit at vx = 1.45 +/- 0.10 cm/s; the band floor (FitOptions.min_band_bins) takes 18."""
@@ -177,7 +179,8 @@ def test_known_velocity_is_held_fixed():
 
 
 def test_large_contact_speeds_hold_and_radius_is_bounded_or_measured():
-    scene = _scene(0.02, 0.0, 6e-3, seed=3)
+    # 8 s: 64 bins, the oblique scene's compiled programs (16 s takes 128 bins and its own compilation)
+    scene = dataclasses.replace(_scene(0.02, 0.0, 6e-3, seed=3), duration=8.0)
     res = fit_recording(simulate(scene))
     assert res.vx == pytest.approx(0.02, rel=0.02)
     if res.a is None:

@@ -32,7 +32,7 @@ def mcmc_run(scene_file, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("fit")
     out = out_dir / "results.json"
     res = CliRunner().invoke(main, ["fit", str(scene_file), "--out", str(out), "--plot", str(out_dir / "figs"),
-                                    "--mcmc", "--steps", "300", "--walkers", "40"])
+                                    "--mcmc", "--steps", "100", "--walkers", "40"])
     return res, out, out_dir
 
 
@@ -84,7 +84,7 @@ def test_fit_mcmc_adds_fields_and_posterior_file(mcmc_run):
     for key in ("mcmc_acceptance", "mcmc_ess", "mcmc_tau_max", "mcmc_warnings", "vx_post_mean", "vx_post_sd",
                 "a_post_mean", "posterior_file"):
         assert key in row, key
-    assert "autocorrelation times" in row["mcmc_warnings"]                     # 300 steps is a short chain
+    assert "autocorrelation times" in row["mcmc_warnings"]                     # 100 steps is a short chain
     assert row["vx_post_mean"] == pytest.approx(VX, rel=0.10)
     post = out_dir / "results_scene_0_posterior.h5"
     assert post.exists() and row["posterior_file"] == str(post)
