@@ -184,6 +184,11 @@ def figure(rows, path):
     plt.close(fig)
 
 
+def _save(out: Path, **fields):
+    """Write a study's ``coverage.json`` (what ``--merge`` reads)."""
+    (out / "coverage.json").write_text(json.dumps(fields, indent=1, default=str))
+
+
 def merge(paths, out: Path):
     """Summarise the rows of several coverage.json files (each scene index once) into ``out``."""
     rows, options = {}, set()
@@ -205,9 +210,7 @@ def merge(paths, out: Path):
     print(f"# coverage study: {len(rows)} scenes merged from {', '.join(map(str, paths))}")
     print(json.dumps(summary, indent=1))
     out.mkdir(parents=True, exist_ok=True)
-    (out / "coverage.json").write_text(json.dumps({"summary": summary, "options": json.loads(options.pop()),
-                                                   "merged_from": [str(p) for p in paths], "rows": rows},
-                                                  indent=1, default=str))
+    _save(out, summary=summary, options=json.loads(options.pop()), merged_from=[str(p) for p in paths], rows=rows)
     figure(rows, out / "coverage.png")
 
 
@@ -234,16 +237,12 @@ def main():
     print(f"# coverage study: {a.scenes} scenes, seed {a.seed}, SNR {a.snr or '30-60'} dB, "
           f"large contacts {a.large_fraction:.0%}; {platform.machine()} {platform.processor()}, "
           f"jax {jax.__version__}, numpy {np.__version__}" + (f"; options {a.option}" if a.option else ""))
-    def save_partial(rows):             # an interrupted run keeps its rows (``--merge`` reads them)
-        (out / "coverage.json").write_text(json.dumps({"partial": True, "options": a.option, "rows": rows},
-                                                      indent=1, default=str))
-
+    # rewritten after every scene: an interrupted run keeps its rows for ``--merge``
     rows = run(a.scenes, options, seed=a.seed, skip=a.skip, large_fraction=a.large_fraction, snr_db=a.snr,
-               on_row=save_partial)
+               on_row=lambda rows: _save(out, partial=True, options=a.option, rows=rows))
     summary = summarize(rows)
     print(json.dumps(summary, indent=1))
-    (out / "coverage.json").write_text(json.dumps({"summary": summary, "options": a.option, "rows": rows}, indent=1,
-                                                  default=str))
+    _save(out, summary=summary, options=a.option, rows=rows)
     figure(rows, out / "coverage.png")
 
 
