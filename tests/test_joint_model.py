@@ -1,4 +1,4 @@
-"""The joint model's texture spectrum: log Phi between the knots."""
+"""The joint model: its texture spectrum between the knots, and the derivatives of its line integrals."""
 
 import jax
 import jax.numpy as jnp
@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
+from tactile_jax import joint_model as jm
 from tactile_jax.joint_model import log_phi_at
 from tactile_jax.texture import RandomTexture
 
@@ -33,3 +34,27 @@ def test_the_spline_follows_the_simulators_texture_spectrum_better_than_straight
     err_spline = np.abs(spline - log_phi(t)).max()
     err_linear = np.abs(linear - log_phi(t)).max()
     assert err_spline < 0.3 * err_linear, (err_spline, err_linear)
+
+
+@pytest.mark.parametrize("nodes", ["_pair_nodes", "_matrix_nodes"])
+@pytest.mark.parametrize("v", [(0.03, 0.012), (0.004, 0.05), (0.02, 1e-5)])
+def test_the_nodes_jvp_along_vx_vy_a_only_is_autodiffs_jvp(nodes, v):
+    # ``_few_inputs_jvp`` pushes 3 tangents through the nodes and maps them onto all parameters: the
+    # Jacobian over a 19-vector (3 physical entries, 16 that the nodes do not see) must be forward
+    # mode's through the undecorated function, both parametrisations (|vx| >= |vy| and not)
+    f = getattr(jm, nodes)
+    omega = jnp.linspace(2.0, 300.0, 9)
+    theta = jnp.concatenate([jnp.log(jnp.array([*v, 1.3e-3])), jnp.linspace(-1.0, 1.0, 16)])
+
+    def through(g):
+        def h(th):
+            out = g(jnp.exp(th[:3]), omega, 0.265e-3, 0.925e-3)
+            return jax.tree.map(lambda o: o * (1.0 + 0.0 * th[3:].sum()), out)
+        return jax.jacfwd(h)(theta)
+
+    got, want = through(f), through(f.fun)
+    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
+        g, w = np.asarray(g), np.asarray(w)
+        assert np.all(np.isfinite(g))
+        np.testing.assert_allclose(g, w, rtol=1e-9, atol=1e-12 * np.abs(w).max())
+        assert not np.any(g[..., 3:])
