@@ -99,11 +99,11 @@ class FitOptions:
         cross-pair spectra: 0 off (each pair's spectra as if the pairs were independent), 1 y1 given
         (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in place of the y pair's ratio
         and S22.1. Needs spectra with ``xy`` (a recording's; files have none: off there, with a
-        warning). The batch (``batch_fit``) does not build the chain yet. On 120 coverage scenes it
-        brought both speeds within 2 % of |v| in 99 of 105 small contacts (default 91; at 1-2 cm/s
-        30 of 36 against 24) at 3x the median fit time (20 s against 6.5 s); its minor components'
-        profile intervals near an axis are too narrow (62.5 % at 1 sigma); README, "Session 13".
-        Off by default until those are mended.
+        warning). The batch (``batch_fit``) does not build the chain yet. On 200 coverage scenes it
+        brought both speeds within 2 % of |v| in 159 of 169 small contacts (default 146; at 1-2 cm/s
+        46 of 53 against 36), 2-sigma coverage 96.5 / 93.5 / 96.0 % for vx / vy / a (default 94.0 /
+        92.5 / 95.0), at a median fit of 2.1 s against 1.4 s; but its vx 1-sigma intervals cover 77 %
+        and its first fit compiles for twice as long (69 s against 32 s); README, "Session 14".
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
     model: the scene model (``model_select.MODELS``): None (default: slip and contact

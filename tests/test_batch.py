@@ -265,8 +265,6 @@ def test_resolution_nperseg_follows_the_slowest_majority():
     assert rule(mixed, np.zeros((3, 2), bool), fs, d, 65536, 1024) == 1024          # no speed: the default
 
 
-@pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
-                    reason="the batch's joint program compiles for ~100 s beside another worker: set TACTILE_JAX_SLOW=1")
 def test_joint_model_error_bars_from_the_jackknife():
     """The batch's joint model scales its errors by each record's delete-one-segment jackknife, as
     ``fit_recording`` does (16 s records, oblique slip: both pairs carry the slip)."""

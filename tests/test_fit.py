@@ -258,8 +258,6 @@ def test_the_chain_model_is_the_schur_complement_of_the_spectral_matrix(oblique)
     np.testing.assert_allclose(log_c[1, rows], np.log(c2), atol=0.05)
 
 
-@pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
-                    reason="the chain's joint fit compiles for ~2.5 min on 2 cores: set TACTILE_JAX_SLOW=1")
 def test_the_cross_pair_chain_sharpens_the_fit(oblique):
     """``FitOptions(cross_pairs=2)``: the y pair is fitted conditioned on the x pair (``cross_pair``), with the
     x-y cross-spectra. Its blocks replace the y pair's own (one bin of those is left, below the chain's band),
