@@ -10,7 +10,7 @@ undecorated nodes (the session-13 code path), and prints per scene and model:
 the first fit (compilation included), the median of the warm fits, their
 ratio, and the largest difference in the fitted values and errors.
 
-    python benchmarks/nodes_jvp.py                 # 3 scenes x (default, cross_pairs=2), 3 warm fits each
+    python benchmarks/nodes_jvp.py                 # 3 scenes x (cross_pairs=0, the default chain), 3 warm fits each
     python benchmarks/nodes_jvp.py --repeats 5
 """
 
@@ -36,7 +36,7 @@ SCENES = {  # label: (|v| m/s, direction deg, a m)
     "slow 1.2 cm/s, 45 deg, 1.2 mm": (0.012, 45.0, 1.2e-3),
     "near an axis 3 cm/s, 86 deg, 1.6 mm": (0.030, 86.0, 1.6e-3),
 }
-MODELS = {"default": FitOptions(), "cross_pairs=2": FitOptions(cross_pairs=2)}
+MODELS = {"cross_pairs=0": FitOptions(cross_pairs=0), "default (chain)": FitOptions()}
 FIELDS = ("vx", "vy", "a", "vx_err", "vy_err", "a_err")
 _RULE = {name: getattr(jm, name) for name in ("_pair_nodes", "_matrix_nodes")}
 

@@ -366,7 +366,8 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
         folders (searched recursively; files that are not recordings are skipped with a note).
     out: results file, .json / .csv / .parquet (the format follows the suffix).
-    options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, solver).
+    options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, solver); the
+        batch does not build the cross-pair chain (``cross_pairs``), which ``fit_recording`` uses by default.
     chunk_size: records per compiled call (memory grows with it, not with the batch).
     workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
     scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
@@ -392,6 +393,10 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         raise TactileInputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}", code="bad_setting")
     if solver not in SOLVERS:
         raise TactileInputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}", code="bad_setting")
+    if options.cross_pairs:
+        raise TactileInputError(f"the batch does not build the cross-pair chain (cross_pairs={options.cross_pairs!r}); "
+                                "leave it unset (the batch fits the pairs as independent) or fit the records with "
+                                "fit_recording", code="bad_setting")
     if out.suffix.lower() not in RESULT_SUFFIXES:
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:

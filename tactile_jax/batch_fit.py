@@ -550,7 +550,7 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     fit = jax.tree_util.tree_map(lambda t: t[best], fits)
     # the error bars' variance scale from the delete-one-segment jackknife, as ``fit_recording``'s
     *_, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx, overlap,
-                                fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None)
+                                fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None, jac=fit.jac)
     return fit, free, scale
 
 

@@ -222,7 +222,8 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
               help="Leave out the deep probe's conditioned PSD S22.1 (fit the ratio and shallow PSD alone).")
 @click.option("--cross-pairs", "cross_pairs", type=click.IntRange(0, 2), default=None,
               help="Fit the y pair conditioned on the x pair, with the x-y cross-spectra (recordings only): "
-                   "0 off, 1 y1 only, 2 both y probes. Default: the fit's (FitOptions.cross_pairs).")
+                   "0 off, 1 y1 only, 2 both y probes. Default: 2 where the spectra have x-y cross-spectra "
+                   "(a recording's), else 0.")
 @_user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
         quiet, scene=None, model=None, ratio_only=False, cross_pairs=None):

@@ -96,14 +96,16 @@ class FitOptions:
         and vy's at 1-2 cm/s (4.1 -> 2.3 %); benchmarks/README.md, "Session 10". False: the
         ratio and the shallow PSD alone (the same compiled model, S22.1 masked out).
     cross_pairs: fit the y pair conditioned on the x pair (``cross_pair``), which brings in the
-        cross-pair spectra: 0 off (each pair's spectra as if the pairs were independent), 1 y1 given
-        (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in place of the y pair's ratio
-        and S22.1. Needs spectra with ``xy`` (a recording's; files have none: off there, with a
-        warning). The batch (``batch_fit``) does not build the chain yet. On 200 coverage scenes it
-        brought both speeds within 2 % of |v| in 159 of 169 small contacts (default 146; at 1-2 cm/s
-        46 of 53 against 36), 2-sigma coverage 96.5 / 93.5 / 96.0 % for vx / vy / a (default 94.0 /
-        92.5 / 95.0), at a median fit of 2.1 s against 1.4 s; but its vx 1-sigma intervals cover 77 %
-        and its first fit compiles for twice as long (69 s against 32 s); README, "Session 14".
+        cross-pair spectra: None (default) 2 where the spectra have the x-y cross-spectra (a
+        recording's) and 0 where not (spectra files), 0 off (each pair's spectra as if the pairs
+        were independent), 1 y1 given (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in
+        place of the y pair's ratio and S22.1 (1 or 2 on spectra without ``xy``: off, with a warning).
+        The batch (``batch_fit``) does not build the chain. On 200 coverage scenes the chain brought
+        both speeds within 2 % of |v| in 159 of 169 small contacts (without: 146; at 1-2 cm/s 46 of
+        53 against 36), 2-sigma coverage 96.5 / 93.5 / 96.0 % for vx / vy / a (without: 94.0 / 92.5 /
+        95.0), at a median fit of 2.1 s against 1.4 s; its vx 1-sigma intervals cover 77 % (without:
+        70.5 %) and its first fit compiles for about twice as long (65 s against 29 s, session 15);
+        README, "Session 14".
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
     model: the scene model (``model_select.MODELS``): None (default: slip and contact
@@ -132,7 +134,7 @@ class FitOptions:
     leakage_db: float = 20.0
     window_term: bool = False
     conditioned: bool = True
-    cross_pairs: int = 0
+    cross_pairs: int | None = None
     solver: str = "optimistix"
     window: str = "gaussian"
     model: str | None = None
@@ -506,6 +508,10 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
         res.status = "unsupported"
         res.message = f"the joint model has the Gaussian window only; window {options.window!r} is not fitted"
         return res
+    if options.cross_pairs not in (None, 0, 1, 2):
+        res.status = "unsupported"
+        res.message = f"cross_pairs must be None (the chain where it can be built), 0, 1 or 2, not {options.cross_pairs!r}"
+        return res
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err,
                                   fmin=options.fmin, fmax=options.fmax, neighbours=options.band_neighbours))
@@ -627,9 +633,10 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
                                               spec.dof, jnp.asarray(mask_h & valid), use=options.conditioned,
                                               noise_floor=options.noise_floor))
     start_data = data                       # the starts run on the model without the chain (below)
-    if options.cross_pairs and spec.xy is not None and band[0].any() and band[1].any():
-        data = data._replace(**chain_fields(spec, idx, jnp.asarray(om), data, options.cross_pairs, grid))
-        res.cross_pairs = int(min(options.cross_pairs, 2))
+    blocks = 2 if options.cross_pairs is None else options.cross_pairs       # None: the chain where it can be built
+    if blocks and spec.xy is not None and band[0].any() and band[1].any():
+        data = data._replace(**chain_fields(spec, idx, jnp.asarray(om), data, blocks, grid))
+        res.cross_pairs = int(min(blocks, 2))
     elif options.cross_pairs and spec.xy is None:
         res.warnings.append("cross_pairs: these spectra have no x-y cross-spectra; the pairs are fitted as if "
                             "independent")
@@ -789,7 +796,8 @@ def _refit_window_term(fit, free, data: jm.ModelData, term: _WindowTerm, lr_err,
     trial = least_squares(jm.residuals, fit.theta, data, jnp.asarray(free), solver=solver, max_steps=256,
                           n_prior=n_prior, rtol=_TOL["full"], atol=_TOL["full"])
     ok = bool(np.all(np.isfinite(np.asarray(trial.theta)))) and np.isfinite(float(trial.chi2))
-    return (trial, data) if ok else (fit, data)
+    # the fallback's Jacobian is that of the data without the term: not the one returned with it
+    return (trial, data) if ok else (fit._replace(jac=None), data)
 
 
 def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> float:
@@ -820,7 +828,7 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
         chain_k = cross_pair.chain_estimate(leave_one_out.psd, leave_one_out.csd, leave_one_out.xy, spec.dof)
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
-        idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k, chain_k))
+        idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k, chain_k, fit.jac))
     ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(("vx", "vy", "a"))
               if free[i] and var_unit[i] > 0}
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios,
@@ -832,7 +840,7 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> f
 
 
 def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx, overlap, redchi, shift_k=None,
-                    c22_k=None, chain_k=None):
+                    c22_k=None, chain_k=None, jac=None):
     """The delete-one-segment jackknife of a joint fit (jnp; the batch's compiled stage calls it too).
 
     log_ratio_k, shallow_k: (K, 2, M) log amplitude ratios and shallow PSDs of the
@@ -841,6 +849,7 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
     c22_k: (K, 2, M) their conditioned deep PSDs (``spectra.conditioned_psd``) when the fit uses them, else None.
     chain_k: their ``cross_pair.ChainEstimate`` (leading axis K) when the fit has the chain, else None (the
         weights stay those of the full record).
+    jac: the residuals' Jacobian at (theta, data) when the fit has it (``LsqResult.jac``), else None.
     Returns the jackknife and unit Laplace variances (P,), (P,), their ratio pooled
     over the free vx, vy, a, and the variance scale of the error bars: the pooled
     ratio, never below ``redchi`` (NaN when there is none).
@@ -855,7 +864,7 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
         ok = chain_k.ok[:, :, idx]
         fields.update(xy_beta1=chain_k.beta1[:, idx], xy_beta2=chain_k.beta2[:, idx],
                       log_xy_c=jnp.where(data.mask_xy & ok, chain_k.log_c[:, :, idx], data.log_xy_c))
-    shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free)
+    shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free, jac)
     var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
     pooled = jackknife.pooled_scale(var, var_unit, free & (jnp.arange(free.shape[0]) < 3))
     scale = jnp.where(jnp.isfinite(pooled) & (pooled > 0), jnp.maximum(pooled, redchi), jnp.nan)

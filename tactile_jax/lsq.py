@@ -42,6 +42,8 @@ class LsqResult(NamedTuple):
     steps, not a failure). cond: condition number of the free block's
     correlation matrix (large: a combination of parameters the data cannot
     tell apart). decrement: that predicted chi2 decrease, g^T (J^T J)^-1 g.
+    jac: (R, P) Jacobian of ``residuals(theta, args)`` at ``theta`` (priors' rows included, all columns),
+    for what needs it afterwards at the same data (``jackknife.linear_shifts``); None where not kept.
     """
 
     theta: jax.Array
@@ -54,6 +56,7 @@ class LsqResult(NamedTuple):
     converged: jax.Array
     cond: jax.Array
     decrement: jax.Array | float = float("nan")
+    jac: jax.Array | None = None
 
 
 def equilibrated_inverse(jtj, free):
@@ -147,4 +150,4 @@ def least_squares(residuals: Callable, theta0, args, free, *, solver: str = "opt
     cov, chi2, n_data, dof, redchi, cond, decrement = fit_statistics(
         theta, r_all, jac_all, free, bin_factor=bin_factor, scale_covar=scale_covar, n_prior=n_prior)
     ok = (ok | (decrement < DECREMENT_TOL)) & jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
-    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_steps, ok, cond, decrement)
+    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_steps, ok, cond, decrement, jac_all)

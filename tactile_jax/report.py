@@ -248,7 +248,9 @@ def fit_report(result, *, truth: dict | None = None) -> str:
     lines = ["[[Fit]]"]
     where = result.file if result.file else "<no file>"
     lines.append(f"    file:      {where}  (record {result.index})")
-    lines.append(f"    model:     {result.model}, window {result.window}")
+    chain = getattr(result, "cross_pairs", 0)
+    chain = f", y pair given x ({chain} block{'s' if chain > 1 else ''}, x-y cross-spectra)" if chain else ""
+    lines.append(f"    model:     {result.model}, window {result.window}{chain}")
     lines.append(f"    status:    {result.status}, converged {bool(result.converged)}")
     lines.append(f"    solver:    {result.solver}, precision {result.precision}")
 

@@ -27,6 +27,14 @@ def oblique():
     return scene, fit_recording(simulate(scene))
 
 
+@pytest.fixture(scope="module")
+def oblique_pairs(oblique):
+    """The same recording without the cross-pair chain (``cross_pairs=0``): each pair's own spectra, the
+    model the conditioned PSD's tests study (with the chain, the y pair's S22.1 is the chain's)."""
+    scene, _ = oblique
+    return scene, fit_recording(simulate(scene), FitOptions(cross_pairs=0))
+
+
 def test_oblique_slip_small_contact_recovered(oblique):
     scene, res = oblique
     assert res.status == "ok" and res.converged, res.message
@@ -74,13 +82,13 @@ def test_the_joint_model_carries_the_realised_window_term(oblique):
     assert np.all(ratio >= np.sqrt(0.05) - 1e-9) and np.median(ratio) < 1.0   # floored; the slope's share out
 
 
-def test_the_conditioned_deep_psd_is_fitted(oblique):
+def test_the_conditioned_deep_psd_is_fitted(oblique_pairs):
     """``FitOptions.conditioned``: each pair's S22.1 = S22 - |S12|^2 / S11, the deep power the shallow
     probe does not explain, joins the residuals. Under oblique slip through a 1.5 mm contact it is the 2-D
     incoherence of the modes on k . v = omega, far above the noise's share, and the model describes it.
     The default; ``conditioned=False`` runs the same compiled model with it masked out."""
-    scene, res = oblique
-    plain = fit_recording(simulate(scene), FitOptions(conditioned=False))
+    scene, res = oblique_pairs
+    plain = fit_recording(simulate(scene), FitOptions(conditioned=False, cross_pairs=0))
     assert not np.any(np.asarray(plain.problem.args.mask_c22))
     assert res.status == "ok", res.message
     data, theta = res.problem.args, np.asarray(res.problem.theta)
@@ -103,11 +111,11 @@ def test_the_conditioned_deep_psd_is_fitted(oblique):
     assert abs(res.vx - scene.velocity[0]) < 0.02 * speed and abs(res.vy - scene.velocity[1]) < 0.02 * speed
 
 
-def test_joint_bound_counts_the_conditioned_psd(oblique):
+def test_joint_bound_counts_the_conditioned_psd(oblique_pairs):
     """``crb.joint_crb`` with the priors and no bin correlation, at the fitted parameters, is the fit's own
     unit Laplace covariance (J^T J)^-1, S22.1 block included; leaving S22.1 out loosens the bound."""
     from tactile_jax.crb import joint_crb
-    _, res = oblique
+    _, res = oblique_pairs
     data, theta, free = res.problem.args, np.asarray(res.problem.theta), np.asarray(res.problem.free)
     bound = joint_crb(theta, data, free, include_priors=True)
     unit = np.array([res.vx_err, res.vy_err, res.a_err]) / np.sqrt(res.error_scale)
@@ -117,13 +125,13 @@ def test_joint_bound_counts_the_conditioned_psd(oblique):
     assert np.all(np.asarray(ratio_only.speed_sd) > 1.05 * np.asarray(bound.speed_sd)), (ratio_only.speed_sd, got)
 
 
-def test_the_cross_pair_spectra_hold_more_information(oblique):
+def test_the_cross_pair_spectra_hold_more_information(oblique_pairs):
     """``spectral_matrix``: its pair entries are ``joint_model``'s line integrals; its x-y entries make the
     lowest bins of the two pairs coherent, and ``crb.whittle_crb`` counts that information: the full 4 x 4
     bound is tighter than the pairs' 2 x 2 blocks alone (benchmarks/information.py has the figures)."""
     from tactile_jax.crb import whittle_crb
     from tactile_jax.spectral_matrix import spectral_matrix
-    scene, res = oblique
+    scene, res = oblique_pairs
     data, free = res.problem.args, np.asarray(res.problem.free)
     theta = np.asarray(res.problem.theta, float).copy()
     theta[:3] = np.log([scene.velocity[0], scene.velocity[1], scene.a])
@@ -143,8 +151,9 @@ def test_minor_component_gets_a_skewed_profile_interval():
     # slip 8.5 deg off x: the spectra depend on vy only through vy^2 (the line k.v = omega tilts
     # symmetrically), so vy's likelihood is skewed toward 0 and the Laplace error is too narrow
     scene = _scene(0.04, 0.006, 1.2e-3, seed=21)
-    # the ratio alone (the deep probe's conditioned PSD depends on vy otherwise and evens the profile out)
-    res = fit_recording(simulate(scene), FitOptions(conditioned=False))
+    # the ratio alone: the deep probe's conditioned PSD and the x-y cross-spectra (the default chain) depend
+    # on vy otherwise and even the profile out (with the chain, vy = 5.83 -0.24 / +0.25 mm/s on this scene)
+    res = fit_recording(simulate(scene), FitOptions(conditioned=False, cross_pairs=0))
     assert res.status == "ok", res.message
     lo, hi, lo2, hi2 = res.vy_lo, res.vy_hi, res.vy_lo2, res.vy_hi2
     assert res.vx_lo is None and (res.vy_upper == hi2 if lo2 == 0 else res.vy_upper is None)
@@ -258,14 +267,15 @@ def test_the_chain_model_is_the_schur_complement_of_the_spectral_matrix(oblique)
     np.testing.assert_allclose(log_c[1, rows], np.log(c2), atol=0.05)
 
 
-def test_the_cross_pair_chain_sharpens_the_fit(oblique):
-    """``FitOptions(cross_pairs=2)``: the y pair is fitted conditioned on the x pair (``cross_pair``), with the
-    x-y cross-spectra. Its blocks replace the y pair's own (one bin of those is left, below the chain's band),
-    its whitened residuals are about unit at the solution, and the same recording gives tighter errors than the
-    default fit's for vx, vy and a (on this scene 0.195 / 0.322 / 0.0135 -> 0.154 / 0.249 / 0.0094, unit
-    Laplace errors in mm/s and mm), still covering the truth."""
-    scene, plain = oblique
-    res = fit_recording(simulate(scene), FitOptions(cross_pairs=2))
+def test_the_cross_pair_chain_sharpens_the_fit(oblique, oblique_pairs):
+    """The default fit of a recording (``FitOptions.cross_pairs`` None: 2 here) fits the y pair conditioned on
+    the x pair (``cross_pair``), with the x-y cross-spectra. Its blocks replace the y pair's own (one bin of
+    those is left, below the chain's band), its whitened residuals are about unit at the solution, and the same
+    recording gives tighter errors than the fit without the chain (``cross_pairs=0``) for vx, vy and a (on this
+    scene 0.195 / 0.322 / 0.0135 -> 0.154 / 0.249 / 0.0094, unit Laplace errors in mm/s and mm), still covering
+    the truth."""
+    scene, res = oblique
+    _, plain = oblique_pairs
     assert res.status == "ok" and res.cross_pairs == 2 and plain.cross_pairs == 0, res.message
     assert res.error_method.startswith("laplace x jackknife")
     data, theta = res.problem.args, res.problem.theta

@@ -1,7 +1,10 @@
 """``tactile-jax fit``: reports, result files, figures, MCMC and failures as rows.
 
 One short simulated scene (8 s, the paper's Fig. 5 slip along x) is fitted by every
-test, so the compiled joint-model functions are built once per process.
+test, so the compiled joint-model functions are built once per process. The fits run
+without the cross-pair chain (``--cross-pairs 0``): these tests are about the command, and the
+chain's model compiles for twice as long (the module took 164 s with it in session 15, every
+check passing; tests/test_fit.py and examples/posterior_corner.py run the default with the chain).
 """
 
 import json
@@ -17,6 +20,7 @@ from tactile_jax.results import read_results, write_results
 from tactile_jax.scene import Scene, simulate
 
 VX = 0.023
+NO_CHAIN = ["--cross-pairs", "0"]
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +36,7 @@ def mcmc_run(scene_file, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("fit")
     out = out_dir / "results.json"
     res = CliRunner().invoke(main, ["fit", str(scene_file), "--out", str(out), "--plot", str(out_dir / "figs"),
-                                    "--mcmc", "--steps", "100", "--walkers", "40"])
+                                    "--mcmc", "--steps", "100", "--walkers", "40", *NO_CHAIN])
     return res, out, out_dir
 
 
@@ -106,7 +110,7 @@ def test_good_and_garbage_files_go_on(scene_file, tmp_path):
     garbage = tmp_path / "garbage.h5"
     garbage.write_bytes(b"not hdf5 at all")
     out = tmp_path / "r.csv"
-    res = CliRunner().invoke(main, ["fit", str(scene_file), str(garbage), "--out", str(out), "--quiet"])
+    res = CliRunner().invoke(main, ["fit", str(scene_file), str(garbage), "--out", str(out), "--quiet", *NO_CHAIN])
     assert res.exit_code == 0, res.output
     assert res.stdout == ""                                                     # --quiet: no reports
     assert "1 fitted, 1 failed" in res.stderr
@@ -118,7 +122,8 @@ def test_good_and_garbage_files_go_on(scene_file, tmp_path):
 
 
 def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
-    """The spectra file carries the estimator (kernel, bin factor, prewhitening filter): same fit."""
+    """The spectra file carries the estimator (kernel, bin factor, prewhitening filter): the same fit as the
+    recording's without the cross-pair chain (a spectra file has no x-y cross-spectra)."""
     spec = tmp_path / "spec.npz"
     runner = CliRunner()
     res = runner.invoke(main, ["spectra", str(scene_file), "--out", str(spec), "--nperseg", "1024"])
@@ -132,7 +137,7 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     from tactile_jax.fit import FitOptions, fit_recording
     from tactile_jax.io import read_recording
 
-    direct = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024))
+    direct = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024, cross_pairs=0))
     for name in ("vx", "a"):
         assert row[name] == pytest.approx(getattr(direct, name), rel=1e-6), name
     # the same Laplace covariance; the recording's scale is its segments' jackknife, the file's
@@ -145,7 +150,7 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     res = runner.invoke(main, ["fit", str(spec), "--out", str(out), "--ratio-only", "--quiet"])
     assert res.exit_code == 0, res.output
     (plain,) = read_results(out)
-    ratio_only = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024, conditioned=False))
+    ratio_only = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024, conditioned=False, cross_pairs=0))
     assert plain["vx"] == pytest.approx(ratio_only.vx, rel=1e-6) and plain["vx"] != pytest.approx(row["vx"], rel=1e-6)
 
 
@@ -164,3 +169,7 @@ def test_report_says_fixed_and_undetermined():
     assert "consistent with 0, 95 % upper bound 0.04 cm/s" in text
     assert "C(log_vy, log_a) = +0.8000" in text
     assert "[[Warnings]]\n    vy is consistent with 0 (95 % upper bound 0.04 cm/s)\n    the contact window" in text
+    assert "x-y cross-spectra" not in text
+    import dataclasses
+    chained = fit_report(dataclasses.replace(r, cross_pairs=2))
+    assert "y pair given x (2 blocks, x-y cross-spectra)" in chained.splitlines()[2]

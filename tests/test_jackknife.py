@@ -51,6 +51,31 @@ def test_linear_model_shifts_are_exact_refits_and_variance_is_the_real_one():
         float(jackknife.pooled_scale(var, var_unit, free)))
 
 
+def test_the_fits_own_jacobian_gives_the_same_shifts():
+    # lsq.least_squares keeps its Jacobian at the optimum (LsqResult.jac): passed in, linear_shifts skips
+    # its own forward-mode pass (the biggest part of its compilation) and must not change a number
+    from tactile_jax.lsq import least_squares
+
+    rng = np.random.default_rng(6)
+    x = np.linspace(-1, 1, 25)
+    y = np.exp(0.3 + 0.8 * x) + 0.05 * rng.standard_normal((12, 25))
+    data = _Line(jnp.asarray(x), jnp.asarray(y.mean(axis=0)), jnp.full(25, 0.05))
+    loo = (y.sum(axis=0) - y) / 11
+
+    free = jnp.asarray([True, True, False])
+    fit = least_squares(_exp_residuals, jnp.asarray([0.0, 0.5, 1.0]), data, free)
+    assert fit.jac.shape == (25, 3) and bool(fit.converged)
+    own = jackknife.linear_shifts(_exp_residuals, fit.theta, data, {"y": jnp.asarray(loo)}, free, fit.jac)
+    again = jackknife.linear_shifts(_exp_residuals, fit.theta, data, {"y": jnp.asarray(loo)}, free)
+    for a, b in zip(own, again):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-14)
+    assert np.all(np.asarray(own[0])[:, 2] == 0) and np.any(np.asarray(own[0])[:, :2] != 0)
+
+
+def _exp_residuals(theta, d):
+    return (d.y - theta[2] * jnp.exp(theta[0] + theta[1] * d.x)) / d.sigma
+
+
 def test_bin_correlation_of_moving_average_noise():
     # errors e_i = u_i + 0.5 u_(i-1): rho_1 = 0.5 / 1.25 = 0.4, rho_2 = 0; K = 300 segments, 40 bins
     rng = np.random.default_rng(5)
