@@ -100,12 +100,12 @@ class FitOptions:
         recording's) and 0 where not (spectra files), 0 off (each pair's spectra as if the pairs
         were independent), 1 y1 given (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in
         place of the y pair's ratio and S22.1 (1 or 2 on spectra without ``xy``: off, with a warning).
-        The batch (``batch_fit``) does not build the chain. On 300 coverage scenes the chain brought
-        both speeds within 2 % of |v| in 237 of 255 small contacts (without: 218; at 1-2 cm/s 69 of
-        81 against 56), 2-sigma coverage 96.7 / 94.3 / 96.0 % for vx / vy / a (without: 95.3 / 93.0 /
-        95.0), at a median fit of 2.4 s against 1.3 s; its vx 1-sigma intervals are too wide, covering
-        76.7 % (without: 71.3 %), and its first fit compiles for about twice as long (65 s against 29 s);
-        README, "Session 15: 300 scenes".
+        The batch (``batch_fit``) does not build the chain. On 500 coverage scenes the chain brought
+        both speeds within 2 % of |v| in 391 of 425 small contacts (without: 364), with 2-sigma
+        coverage 96.2 / 95.4 / 95.6 % for vx / vy / a (without: 95.2 / 94.8 / 94.6). Its vx 1-sigma
+        intervals are too wide: they cover 74.6 % (without: 68.4 %), mostly where x is the major
+        component. Its first fit compiles for about twice as long (65 s against 29 s). README,
+        "Session 17: 500 scenes".
     solver: "optimistix" (Levenberg-Marquardt) or "jaxopt" (for comparison).
     window: "gaussian" (the joint model's window).
     model: the scene model (``model_select.MODELS``): None (default: slip and contact

@@ -16,7 +16,9 @@ import os
 # jax's cache write in a session-12 run probably came from the memory mappings near their limit)
 os.environ["TACTILE_JAX_CACHE"] = ""
 
+import shutil  # noqa: E402
 import tempfile  # noqa: E402
+import uuid  # noqa: E402
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -26,7 +28,27 @@ jax.config.update("jax_enable_x64", True)
 # this one, before releasing its programs below) compiled is loaded, not compiled again. Per run
 # (pytest-xdist's run id), in the temporary directory, so that no run starts warm.
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
-jax.config.update("jax_compilation_cache_dir", os.path.join(tempfile.gettempdir(), f"tactile_jax_tests_{_RUN}"))
+_CACHE_DIR = os.path.join(tempfile.gettempdir(), f"tactile_jax_tests_{_RUN}")
+jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
+
+
+def pytest_configure(config):
+    """Under pytest-xdist the controlling process picks the run id itself (xdist would draw one only
+    when its workers start), so that it knows which cache to remove at the end."""
+    if not hasattr(config, "workerinput") and config.pluginmanager.hasplugin("xdist"):
+        if getattr(config.option, "testrunuid", None) is None:
+            config.option.testrunuid = uuid.uuid4().hex
+
+
+def pytest_sessionfinish(session):
+    """The run's compilation cache (about 16 MB) goes with the run: removed by the controlling
+    process once every worker is done (a worker's ``config`` has ``workerinput``)."""
+    config = session.config
+    if not hasattr(config, "workerinput"):
+        run = getattr(config.option, "testrunuid", None)       # None: xdist not installed
+        for cache in {_CACHE_DIR, os.path.join(tempfile.gettempdir(), f"tactile_jax_tests_{run}")}:
+            shutil.rmtree(cache, ignore_errors=True)       # _CACHE_DIR: the tests ran in this process (-n0)
+
 
 #: memory mappings above which jax's compiled programs are released: after a test module, and
 #: after any test; one joint fit's programs hold about 4,300 (session 13) and Linux's default
