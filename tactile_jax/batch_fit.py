@@ -48,7 +48,7 @@ from .closed_form import radius_from_offset, slope_speed
 from .fit import (MIN_PAIR_BAND_BINS, FitOptions, conditioned_fields, dominant_line, joint_jackknife, leakage_only,
                   resolution_segment)
 from .gauss_newton import N_ITERATIONS, gauss_newton
-from .lsq import SOLVERS as LSQ_SOLVERS, least_squares
+from .lsq import SOLVERS as LSQ_SOLVERS, STEP_TOL, least_squares
 from .prewhiten import filter_gain
 from .r_curve import log_g, log_r_exact
 from jax.scipy.special import logsumexp
@@ -601,9 +601,13 @@ def _summarise_joint(fit, free, known, vel, n_band, scale):
     weak = (a_err > 0.5 * a) | (a > 0.05)                    # the window is too weak to measure a (as fit.py)
     gain = th[3:5]
     gain_err = jnp.where(free[3:5], gain * sd[3:5], jnp.nan)
+    # stopped at max_steps with only texture knots still moving: the physics stands (fit._settled_physics)
+    physics = free & (jnp.arange(free.shape[0]) < jm.N_FIXED_PARAMS)
+    settled = ~fit.converged & jnp.all(jnp.where(physics, jnp.abs(fit.step_sigma) < STEP_TOL, True)) \
+        & jnp.all(jnp.isfinite(fit.step_sigma))
     return dict(speed=speed, speed_err=speed_err, a=jnp.where(weak, jnp.nan, a),
                 a_err=jnp.where(weak, jnp.nan, a_err), a_weak=weak, gain=gain, gain_err=gain_err,
-                redchi=redchi, chi2=fit.chi2, cond=fit.cond, converged=fit.converged,
+                redchi=redchi, chi2=fit.chi2, cond=fit.cond, converged=fit.converged | settled, settled=settled,
                 finite=jnp.all(jnp.isfinite(fit.theta)) & jnp.isfinite(fit.chi2),
                 n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS, error_scale=scale)
 
@@ -765,6 +769,9 @@ def _statuses(out: dict, k0, known, program: FitProgram) -> ChunkFit:
         if not out["converged"][i]:
             status[i] = "not_converged"
             notes.append(f"the solver did not converge ({solver})")
+        elif "settled" in out and out["settled"][i]:
+            notes.append("the solver stopped at its step limit with texture knots still moving; the speeds, radius "
+                         f"and gains were settled (a full Gauss-Newton step moves them by < {STEP_TOL} sigma)")
         if out["redchi"][i] > _POOR_FIT_REDCHI and status[i] == "ok":
             status[i] = "poor_fit"
             notes.insert(0, f"poor fit: reduced chi-square {out['redchi'][i]:.1f}; the {model} model does not describe "

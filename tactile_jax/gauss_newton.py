@@ -134,10 +134,10 @@ def gauss_newton(residuals: Callable, theta0, args, free, *, n_iter: int = N_ITE
     theta0 = jnp.asarray(theta0)
     free = jnp.asarray(free, bool)
     theta, r, jac, last_step, n_acc = _iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac, max_step)
-    cov, chi2, n_data, dof, redchi, cond, decrement = fit_statistics(
+    cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma = fit_statistics(
         theta, r, jac, free, bin_factor=bin_factor, scale_covar=scale_covar, n_prior=n_prior)
     # the undamped step still to go, in units of the error ellipsoid: g^T (J^T J)^-1 g / redchi
     remaining = decrement / jnp.maximum(redchi, 1e-300)
     small_step = (last_step <= xtol) | (jnp.sum(free) == 0)
     converged = (remaining <= gtol ** 2) & small_step & jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
-    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_acc, converged, cond, decrement)
+    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_acc, converged, cond, decrement, step_sigma=step_sigma)

@@ -22,11 +22,14 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
-__all__ = ["LsqResult", "equilibrated_inverse", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL"]
+__all__ = ["LsqResult", "equilibrated_inverse", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL",
+           "STEP_TOL"]
 
 SOLVERS = ("optimistix", "jaxopt")
 #: a solve stopped by ``max_steps`` still counts as converged below this Gauss-Newton decrement (chi2 units)
 DECREMENT_TOL = 1e-2
+#: a parameter is settled when the full Gauss-Newton step would move it by less than this many (unit) sigmas
+STEP_TOL = 0.1
 
 
 class LsqResult(NamedTuple):
@@ -44,6 +47,9 @@ class LsqResult(NamedTuple):
     tell apart). decrement: that predicted chi2 decrease, g^T (J^T J)^-1 g.
     jac: (R, P) Jacobian of ``residuals(theta, args)`` at ``theta`` (priors' rows included, all columns),
     for what needs it afterwards at the same data (``jackknife.linear_shifts``); None where not kept.
+    step_sigma: (P,) the full Gauss-Newton step still to go, each parameter in units of its own
+    sd from (J^T J)^-1 (0 for fixed ones): which parameters a stop at ``max_steps`` left moving
+    (below ``STEP_TOL``: settled; its decrement can stay large while only ill-determined ones move).
     """
 
     theta: jax.Array
@@ -57,6 +63,7 @@ class LsqResult(NamedTuple):
     cond: jax.Array
     decrement: jax.Array | float = float("nan")
     jac: jax.Array | None = None
+    step_sigma: jax.Array | None = None
 
 
 def equilibrated_inverse(jtj, free):
@@ -74,7 +81,8 @@ def equilibrated_inverse(jtj, free):
 
 
 def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: bool = True, n_prior: int = 0):
-    """Fit statistics at ``theta``: (cov, chi2, n_data, dof, redchi, cond, decrement), as in ``LsqResult``.
+    """Fit statistics at ``theta``: (cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma), as in
+    ``LsqResult``.
 
     r_all: (K,) residuals, the last ``n_prior`` of them priors. jac_all: (K, P) their Jacobian
     (fixed columns are zeroed here). free: (P,) bool.
@@ -94,8 +102,10 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
     factor = jnp.where(scale_covar, redchi, 1.0) * bin_factor
     cov = jnp.where(free[:, None] & free[None, :], cov * factor, 0.0)
     grad = jnp.where(free, (jac_all.T @ r_all) / d, 0.0)     # gradient of chi2 / 2, scaled variables
-    decrement = grad @ inv @ grad
-    return cov, chi2, n_data, dof, redchi, cond, decrement
+    step = -inv @ grad                                       # the Gauss-Newton step, scaled variables
+    decrement = -grad @ step
+    step_sigma = jnp.where(free, step / jnp.sqrt(jnp.clip(jnp.diag(inv), 1e-300, None)), 0.0)
+    return cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma
 
 
 def _solve_optimistix(fn, y0, args, max_steps, rtol, atol):
@@ -147,7 +157,7 @@ def least_squares(residuals: Callable, theta0, args, free, *, solver: str = "opt
     theta = full(y)
     r_all = residuals(theta, args)
     jac_all = jax.jacfwd(residuals)(theta, args)
-    cov, chi2, n_data, dof, redchi, cond, decrement = fit_statistics(
+    cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma = fit_statistics(
         theta, r_all, jac_all, free, bin_factor=bin_factor, scale_covar=scale_covar, n_prior=n_prior)
     ok = (ok | (decrement < DECREMENT_TOL)) & jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
-    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_steps, ok, cond, decrement, jac_all)
+    return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_steps, ok, cond, decrement, jac_all, step_sigma)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from tactile_jax import joint_model as jm
-from tactile_jax.fit import FitOptions, fit_cross_spectra, fit_recording
+from tactile_jax.fit import FitOptions, FitResult, _settled_physics, fit_cross_spectra, fit_recording
+from tactile_jax.lsq import LsqResult
 from tactile_jax.scene import Scene, simulate
 from tactile_jax.spectra import estimate_spectra
 from tactile_jax.texture import RandomTexture
@@ -293,3 +294,31 @@ def test_the_cross_pair_chain_sharpens_the_fit(oblique, oblique_pairs):
         unit, unit_plain = err / np.sqrt(res.error_scale), getattr(plain, name + "_err") / np.sqrt(plain.error_scale)
         assert unit < 0.9 * unit_plain, (name, unit / unit_plain)
     assert "cross_pairs" in res.to_record()
+
+
+def _stopped(step_sigma):
+    """An LsqResult stopped at max_steps (only ``step_sigma`` matters to ``_settled_physics``)."""
+    p = len(step_sigma)
+    return LsqResult(np.zeros(p), np.eye(p), 1.0, 10, 5, 0.2, 256, False, 1.0, 4.7, step_sigma=np.asarray(step_sigma))
+
+
+def test_a_stop_with_only_texture_knots_moving_keeps_the_physics():
+    """Session 18, coverage scene 4 (1.2 deg off x) redrawn: vx 0.02, vy 0.08 sigma from the optimum,
+    log_phi_8..11 1.4-2.1 sigma: the speeds stand; the warning names the knots that were moving."""
+    names = jm.param_names(4)
+    free = np.ones(len(names), bool)
+    free[[3, 4, 6]] = False                                   # gains known, no noise floor
+    steps = [0.023, -0.076, -0.003, 0.0, 0.0, -0.055, 0.0, 0.05, -0.08, 1.4, 2.1]
+    res = FitResult()
+    assert _settled_physics(res, _stopped(steps), names, free)
+    assert "log_phi_2, log_phi_3: up to 2.1 sigma" in res.warnings[0] and "log_phi_1" not in res.warnings[0]
+
+
+@pytest.mark.parametrize("moving", [1, 2, 5])
+def test_a_stop_with_a_physical_parameter_moving_is_not_converged(moving):
+    names = jm.param_names(2)
+    steps = np.zeros(len(names))
+    steps[moving] = 0.15
+    res = FitResult()
+    assert not _settled_physics(res, _stopped(steps), names, np.ones(len(names), bool)) and not res.warnings
+    assert not _settled_physics(res, _stopped(steps)._replace(step_sigma=None), names, np.ones(len(names), bool))

@@ -53,3 +53,23 @@ def test_capped_solve_at_the_optimum_counts_as_converged(problem):
     assert int(res.n_steps) == 2                       # zero tolerances: the solver itself never stops
     assert float(res.decrement) < DECREMENT_TOL
     assert bool(res.converged)
+
+
+def test_step_sigma_is_the_remaining_gauss_newton_step_in_sigmas(problem):
+    """``step_sigma``: the undamped step still to go over each parameter's (J^T J)^-1 sd, by numpy."""
+    args, theta0 = problem
+    res = least_squares(_decay, jnp.asarray(theta0), args, jnp.array([True, True]), max_steps=2)
+    th = np.asarray(res.theta)
+    r = np.asarray(_decay(jnp.asarray(th), args))
+    jac = np.asarray(jax.jacfwd(_decay)(jnp.asarray(th), args))
+    h_inv = np.linalg.inv(jac.T @ jac)
+    step = -h_inv @ jac.T @ r
+    np.testing.assert_allclose(np.asarray(res.step_sigma), step / np.sqrt(np.diag(h_inv)), rtol=1e-6)
+    np.testing.assert_allclose(float(res.decrement), step @ jac.T @ jac @ step, rtol=1e-6)
+    assert np.max(np.abs(np.asarray(res.step_sigma))) > 1.0          # far from the optimum: still moving
+
+
+def test_a_fixed_parameter_has_no_step(problem):
+    args, theta0 = problem
+    res = least_squares(_decay, jnp.asarray(theta0), args, jnp.array([True, False]), max_steps=2)
+    assert float(res.step_sigma[1]) == 0.0 and np.isfinite(float(res.step_sigma[0]))
