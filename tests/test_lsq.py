@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.lsq import DECREMENT_TOL, least_squares
+from tactile_jax.lsq import DECREMENT_TOL, DOGLEG, least_squares
 
 jax.config.update("jax_enable_x64", True)
 
@@ -73,3 +73,15 @@ def test_a_fixed_parameter_has_no_step(problem):
     args, theta0 = problem
     res = least_squares(_decay, jnp.asarray(theta0), args, jnp.array([True, False]), max_steps=2)
     assert float(res.step_sigma[1]) == 0.0 and np.isfinite(float(res.step_sigma[0]))
+
+
+def test_dogleg_goes_on_from_a_capped_solve_to_the_same_optimum(problem):
+    """``DOGLEG`` (fit._rescue's solver) from where a capped LM stopped reaches LM's own optimum."""
+    args, theta0 = problem
+    free = jnp.array([True, True])
+    best = least_squares(_decay, jnp.asarray(theta0), args, free)
+    capped = least_squares(_decay, jnp.asarray(theta0), args, free, max_steps=2)
+    res = least_squares(_decay, capped.theta, args, free, solver=DOGLEG)
+    assert bool(res.converged) and float(res.decrement) < 1e-6
+    sd = np.sqrt(np.diag(np.asarray(best.cov)))
+    np.testing.assert_allclose(np.asarray(res.theta), np.asarray(best.theta), atol=1e-4 * sd.min())
