@@ -46,7 +46,7 @@ import numpy as np
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
 from .fit import (MIN_PAIR_BAND_BINS, FitOptions, conditioned_fields, dominant_line, joint_jackknife, leakage_only,
-                  resolution_segment)
+                  physics_settled, resolution_segment)
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, STEP_TOL, least_squares
 from .prewhiten import filter_gain
@@ -602,9 +602,7 @@ def _summarise_joint(fit, free, known, vel, n_band, scale):
     gain = th[3:5]
     gain_err = jnp.where(free[3:5], gain * sd[3:5], jnp.nan)
     # stopped at max_steps with only texture knots still moving: the physics stands (fit._settled_physics)
-    physics = free & (jnp.arange(free.shape[0]) < jm.N_FIXED_PARAMS)
-    settled = ~fit.converged & jnp.all(jnp.where(physics, jnp.abs(fit.step_sigma) < STEP_TOL, True)) \
-        & jnp.all(jnp.isfinite(fit.step_sigma))
+    settled = ~fit.converged & physics_settled(fit, free)
     return dict(speed=speed, speed_err=speed_err, a=jnp.where(weak, jnp.nan, a),
                 a_err=jnp.where(weak, jnp.nan, a_err), a_weak=weak, gain=gain, gain_err=gain_err,
                 redchi=redchi, chi2=fit.chi2, cond=fit.cond, converged=fit.converged | settled, settled=settled,

@@ -919,6 +919,14 @@ def _contact_depth(res: FitResult, curvature_radius):
         res.warnings.append(f"curvature_radius not given: contact depth assumes R = {1e3 * r:g} mm")
 
 
+def physics_settled(fit: LsqResult, free):
+    """Whether every free non-texture parameter's |``step_sigma``| is below ``lsq.STEP_TOL`` (all of it
+    finite): a stop at ``max_steps`` that leaves the physics where it is. jnp (the batch vmaps it)."""
+    step = jnp.abs(jnp.asarray(fit.step_sigma))
+    physics = jnp.asarray(free, bool) & (jnp.arange(step.shape[-1]) < jm.N_FIXED_PARAMS)
+    return jnp.all(jnp.isfinite(step)) & jnp.any(physics) & jnp.all(jnp.where(physics, step < STEP_TOL, True))
+
+
 def _physics_steps(fit: LsqResult, free):
     """Largest |step_sigma| of the free non-texture and of the texture parameters (NaN without it)."""
     step = None if fit.step_sigma is None else np.abs(np.asarray(fit.step_sigma))
@@ -941,9 +949,9 @@ def _settled_physics(res: FitResult, fit: LsqResult, names, free) -> bool:
     every free non-texture parameter's remaining step is below ``lsq.STEP_TOL`` of its sd. Then the
     reported values and errors stand, and a warning names the knots that were still moving.
     """
-    top, top_texture, step = _physics_steps(fit, free)
-    if not top < STEP_TOL:                                    # NaN (no step, no physics) is not settled
+    if fit.step_sigma is None or not bool(physics_settled(fit, free)):
         return False
+    top, top_texture, step = _physics_steps(fit, free)
     moving = [n for n, s, f in zip(names, step, free) if f and s >= STEP_TOL]
     res.warnings.append(
         f"the solver stopped at its step limit with texture knots still moving ({', '.join(moving)}: up to "

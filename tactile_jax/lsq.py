@@ -110,21 +110,20 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
     return cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma
 
 
-def _solve_optimistix(fn, y0, args, max_steps, rtol, atol):
+def _optimistix_solver(name: str, rtol, atol):
+    if name == DOGLEG:
+        # A rescue for LM stopped at max_steps in a curved valley (``fit._rescue``): on coverage scene 4
+        # redrawn, LM gained < 1.7 chi2 in 512 steps from its stopping point where Dogleg converged in 48
+        return optx.Dogleg(rtol=rtol, atol=atol)
     # The damped step solved by Cholesky on the normal equations, not optimistix's default QR of the
     # stacked [J; sqrt(lambda) I]: the same minimum (53 vs 60 steps), but 3.8x less time per step on the joint
     # model (39 vs 151 ms on 2 CPU cores, 128 bins, 19 parameters); the damping keeps J^T J +
     # lambda I positive definite, and the covariance below does not use this factorisation.
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+
+
+def _solve_optimistix(fn, y0, args, max_steps, solver):
     sol = optx.least_squares(fn, solver, y0, args, max_steps=max_steps, throw=False, options={"jac": "fwd"})
-    return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
-
-
-def _solve_dogleg(fn, y0, args, max_steps, rtol, atol):
-    # A rescue for LM stopped at max_steps in a curved valley (``fit._rescue``): on coverage scene 4
-    # redrawn, LM gained < 1.7 chi2 in 512 steps from its stopping point where Dogleg converged in 48
-    sol = optx.least_squares(fn, optx.Dogleg(rtol=rtol, atol=atol), y0, args, max_steps=max_steps, throw=False,
-                             options={"jac": "fwd"})
     return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
 
@@ -158,12 +157,10 @@ def least_squares(residuals: Callable, theta0, args, free, *, solver: str = "opt
         # fixed entries get a zero-valued residual with unit slope: the Jacobian keeps full rank
         return jnp.concatenate([residuals(full(y), a), jnp.where(free, 0.0, y - theta0)])
 
-    if solver == "optimistix":
-        y, n_steps, ok = _solve_optimistix(fn, theta0, args, max_steps, rtol, atol)
+    if solver in ("optimistix", DOGLEG):
+        y, n_steps, ok = _solve_optimistix(fn, theta0, args, max_steps, _optimistix_solver(solver, rtol, atol))
     elif solver == "jaxopt":
         y, n_steps, ok = _solve_jaxopt(fn, theta0, args, max_steps, rtol, atol)
-    elif solver == DOGLEG:
-        y, n_steps, ok = _solve_dogleg(fn, theta0, args, max_steps, rtol, atol)
     else:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     theta = full(y)
