@@ -125,6 +125,23 @@ def _target(small):
             "a_5pct_expected": float(np.mean([p_within(r["a_err"], 0.05 * r["a_true"]) for r in with_a])) if with_a else None}
 
 
+ANGLE_BANDS = ((0, 20), (20, 45), (45, 70), (70, 90))     # deg from the x axis
+
+
+def _by_angle(rows):
+    """1-sigma coverage of the reported intervals of vx and vy per slip-angle band (the near-axis
+    major component's intervals have been the widest: README, "Error bars: coverage")."""
+    out = {}
+    for lo, hi in ANGLE_BANDS:
+        band = [r for r in rows if lo <= r["angle_deg"] < hi or (hi == 90 and r["angle_deg"] == 90)]
+        entry = {"n": len(band)}
+        for name in ("vx", "vy"):
+            hits = [_interval_hits(r, name)[0] for r in band if r[name] is not None and r[name + "_err"]]
+            entry[name] = float(np.mean(hits)) if hits else None
+        out[f"{lo}-{hi}"] = entry
+    return out
+
+
 def summarize(rows):
     out = {}
     for name in ("vx", "vy", "a"):
@@ -141,6 +158,7 @@ def summarize(rows):
         out[name].update({"cover_1sigma_reported": float(np.mean([h[0] for h in hits])) if hits else None,
                           "cover_2sigma_reported": float(np.mean([h[1] for h in hits])) if hits else None,
                           "n_profile": n_prof})
+    out["by_angle"] = _by_angle(rows)
     small = [r for r in rows if r["a_true"] <= 2.5e-3]
     for name in ("vx", "vy"):
         dev = np.array([abs(r[name] - r[name + "_true"]) / r["speed"] for r in small if r[name] is not None])

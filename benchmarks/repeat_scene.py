@@ -4,15 +4,17 @@ Each scene of ``coverage.scenes`` is simulated again ``--draws`` times with new
 texture and noise (the scene's speeds, radius and SNR kept), fitted with the
 defaults, and the major speed component's scatter across draws compared with
 the median reported error, the median unit Laplace error (the reported one over
-sqrt(error_scale)), the error scale and that component's own jackknife variance
-ratio. With the texture fixed the scatter is about 5x smaller than the reported
+the root of its scale, ``FitResult.error_scales``), that scale and the component's
+own jackknife variance ratio (the same since session 19, unless the reduced
+chi-square is larger). With the texture fixed the scatter is about 5x smaller than the reported
 error (session 16): the texture's randomness is most of what an error bar
 covers, so only full redraws test it.
 
     python benchmarks/repeat_scene.py 1 4 --draws 30 --out benchmarks/out    # ~15 min per scene, 2 cores
 
 Session 18 (2-core x86-64, jax 0.10.2): scene 4 (1.2 deg off x, 4 cm/s) err^2 / scatter^2
-1.77 (unit Laplace 1.05, scale 1.68, vx's own jackknife ratio 1.06); scene 1 (16 deg, 6.6 cm/s) 1.17.
+1.77 (unit Laplace 1.05, scale 1.68 pooled over vx, vy, a, vx's own jackknife ratio 1.06); scene 1
+(16 deg, 6.6 cm/s) 1.17. Since session 19 each of vx, vy, a takes its own ratio.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ def repeat(scene, index: int, draws: int) -> dict:
         statuses.append(r.status)
         print(f"  scene {index} draw {k}: {r.status} ({time.perf_counter() - t0:.0f} s)", flush=True)
         if r.status == "ok" and getattr(r, major + "_err") and r.jackknife:
-            rows.append((getattr(r, major), getattr(r, major + "_err"), r.error_scale,
+            rows.append((getattr(r, major), getattr(r, major + "_err"), r.error_scales[major],
                          r.jackknife["variance_ratio"].get(major, np.nan)))
     a = np.array(rows, float).reshape(-1, 4)
     out = {"scene": index, "component": major, "speed": float(np.hypot(*scene.velocity)),

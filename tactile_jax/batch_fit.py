@@ -115,7 +115,8 @@ class ChunkFit(NamedTuple):
     vx, vx_err, vy, vy_err: m/s. a, a_err: m. gx, gx_err, gy, gy_err: gain ratios.
     k0: (B, 2) rad/m. redchi, chi2, cond: fit statistics. n_bins: usable bins fitted.
     converged: bool. status: (B,) str. message: (B,) str. error_scale: the variance scale
-    of the joint model's Laplace covariance from its jackknife (NaN: the pair model's
+    of the joint model's Laplace covariance from its jackknife, pooled over vx, vy, a (each
+    of which has its own, as in ``fit``) (NaN: the pair model's
     max(redchi, 1) x bin_factor, or the joint one's max(redchi, 1) when the jackknife failed).
     """
 
@@ -549,9 +550,10 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     best = jnp.argmin(chi2)
     fit = jax.tree_util.tree_map(lambda t: t[best], fits)
     # the error bars' variance scale from the delete-one-segment jackknife, as ``fit_recording``'s
-    *_, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx, overlap,
-                                fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None, jac=fit.jac)
-    return fit, free, scale
+    _, _, pooled, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx,
+                                          overlap, fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None,
+                                          jac=fit.jac)
+    return fit, free, scale, jnp.where(jnp.isfinite(scale[0]), jnp.maximum(pooled, fit.redchi), jnp.nan)
 
 
 def _summarise_pair(pair, n_band, known, vel, options):
@@ -588,9 +590,10 @@ def _summarise_pair(pair, n_band, known, vel, options):
                 n_bins=jnp.sum(jnp.where(fitted, pair.n_data, 0)), enough=jnp.any(fitted))
 
 
-def _summarise_joint(fit, free, known, vel, n_band, scale):
+def _summarise_joint(fit, free, known, vel, n_band, scale, pooled):
     redchi = fit.redchi
-    # the jackknife's scale (``fit.joint_jackknife``), else max(redchi, 1); lsq's cov carries redchi
+    # the jackknife's scales (P,) (``fit.joint_jackknife``: vx, vy, a each their own, the rest ``pooled``),
+    # else max(redchi, 1); lsq's cov carries redchi
     used = jnp.where(jnp.isfinite(scale), scale, jnp.maximum(redchi, 1.0))
     inflate = jnp.where(redchi > 0, used / jnp.where(redchi > 0, redchi, 1.0), 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diagonal(fit.cov) * inflate, 0, None))
@@ -607,7 +610,7 @@ def _summarise_joint(fit, free, known, vel, n_band, scale):
                 a_err=jnp.where(weak, jnp.nan, a_err), a_weak=weak, gain=gain, gain_err=gain_err,
                 redchi=redchi, chi2=fit.chi2, cond=fit.cond, converged=fit.converged | settled, settled=settled,
                 finite=jnp.all(jnp.isfinite(fit.theta)) & jnp.isfinite(fit.chi2),
-                n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS, error_scale=scale)
+                n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS, error_scale=pooled)
 
 
 @partial(jax.jit, static_argnames=("options", "model", "length", "n_fit", "kernel", "dof", "bin_factor", "group",
@@ -635,9 +638,9 @@ def _fit_stage(stage, depths, gains, velocity, known, *, options: FitOptions, mo
         pair = _pair_fits(st, d, g, vel, kn, n_fit, options, offsets_k, log_w, bin_factor, solver, span)
         if model == "pair":
             return _summarise_pair(pair, n_band, kn, vel, options)
-        fit, free, scale = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
+        fit, free, scale, pooled = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
                                       bin_factor, overlap)
-        return _summarise_joint(fit, free, kn, vel, n_band, scale)
+        return _summarise_joint(fit, free, kn, vel, n_band, scale, pooled)
 
     xs = (stage, depths, gains, velocity, known)
     return jax.lax.map(lambda args: one(*args), xs, batch_size=group)
@@ -832,7 +835,7 @@ def chunk_rows(fit: ChunkFit, meta: ChunkMeta, files, indices, *, model: str, op
                    n_bins=int(fit.n_bins[i]), cond=num(fit.cond[i]), solver=solver or options.solver, precision=precision)
         scale = None if fit.error_scale is None else num(fit.error_scale[i])
         row.update(error_scale=scale, error_method=(
-            "laplace x jackknife" if scale is not None else
+            "laplace x jackknife (vx, vy, a each their own)" if scale is not None else
             "laplace x max(redchi, 1) x bin_factor" if model == "pair" else "laplace x max(redchi, 1)"))
         rows.append(row)
     return rows

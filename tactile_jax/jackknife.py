@@ -22,7 +22,7 @@ import numpy as np
 
 from .lsq import equilibrated_inverse
 
-__all__ = ["linear_shifts", "covariance", "pooled_scale", "bin_correlation"]
+__all__ = ["linear_shifts", "covariance", "pooled_scale", "own_scales", "bin_correlation"]
 
 
 @partial(jax.jit, static_argnums=0)
@@ -75,6 +75,24 @@ def pooled_scale(var_jk, var_unit, use):
     ratio = jnp.asarray(var_jk) / jnp.where(use, var_unit, 1.0)
     n = jnp.sum(use)
     return jnp.where(n > 0, jnp.sum(jnp.where(use, ratio, 0.0)) / jnp.maximum(n, 1), jnp.nan)
+
+
+def own_scales(var_jk, var_unit, own, floor):
+    """Variance scales (P,) of the Laplace covariance: the ``own`` parameters each their jackknife ratio.
+
+    var_jk, var_unit: (P,) jackknife and unit (J^T J)^-1 variances; own: (P,) bool,
+    the parameters that take their own ratio var_jk / var_unit (zero-variance ones
+    are skipped); every other parameter takes that ratio pooled over ``own``
+    (``pooled_scale``). No scale falls below ``floor`` (the reduced chi-square: a
+    misfit the segments share). Returns (pooled, scales); both NaN when nothing is
+    pooled. The Laplace correlations are kept: cov_ij = unit_ij sqrt(s_i s_j). jnp.
+    """
+    var_unit = jnp.asarray(var_unit)
+    own = jnp.asarray(own, bool) & (var_unit > 0)
+    pooled = pooled_scale(var_jk, var_unit, own)
+    ratio = jnp.where(own, jnp.asarray(var_jk) / jnp.where(own, var_unit, 1.0), pooled)
+    ok = jnp.isfinite(pooled) & (pooled > 0)
+    return pooled, jnp.where(ok, jnp.maximum(ratio, floor), jnp.nan)
 
 
 def bin_correlation(values, mask, max_lag: int = 2) -> np.ndarray:

@@ -25,7 +25,10 @@ class FitProblem(NamedTuple):
     cov: (P, P) Laplace (Gauss-Newton) covariance of ``theta``.
     scale: likelihood temperature (the variance scale of the covariance,
         ``FitResult.error_scale``: jackknife or reduced chi-square x bin
-        factor), so that sampler and Laplace widths agree.
+        factor), so that sampler and Laplace widths agree. One number: where
+        vx, vy and a have their own jackknife scales (``FitResult.error_scales``),
+        their posterior widths are the pooled scale's, and differ from their
+        Laplace errors by sqrt(own / pooled).
     to_physical: function ``(theta (..., P)) -> dict[name, array (...)]`` of
         the reported physical quantities (m/s, m, ...); vectorised over
         leading axes with numpy.

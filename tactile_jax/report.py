@@ -262,6 +262,9 @@ def fit_report(result, *, truth: dict | None = None) -> str:
              ("condition number", _num(result.cond, 3)))
     if getattr(result, "error_method", ""):
         stats += (("error scale", f"{_num(result.error_scale, 3)}  ({result.error_method})"),)
+        own = getattr(result, "error_scales", None) or {}
+        if own and result.error_method.startswith("laplace x jackknife"):
+            stats += (("  of vx, vy, a", ", ".join(f"{k} {_num(v, 3)}" for k, v in own.items())),)
     lines += [f"    {k:<19}= {v}" for k, v in stats]
 
     lines.append("[[Variables]]")

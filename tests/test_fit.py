@@ -57,6 +57,11 @@ def test_oblique_slip_small_contact_recovered(oblique):
     assert res.error_method.startswith("laplace x jackknife") and row["error_scale"] == res.error_scale
     assert set(jk["variance_ratio"]) == {"vx", "vy", "a"} and 0.2 < jk["pooled"] < 5
     assert res.error_scale == pytest.approx(max(jk["pooled"], res.redchi))
+    # vx, vy and a each take their own jackknife ratio (test_joint_bound_counts_the_conditioned_psd checks
+    # that the errors are the unit Laplace ones times these); the texture and gains the pooled one
+    for name in ("vx", "vy", "a"):
+        assert res.error_scales[name] == pytest.approx(max(jk["variance_ratio"][name], res.redchi)), name
+    assert np.ptp(list(res.error_scales.values())) > 0.01
 
 
 def test_the_joint_model_carries_the_realised_window_term(oblique):
@@ -107,7 +112,8 @@ def test_the_conditioned_deep_psd_is_fitted(oblique_pairs):
         got, err = getattr(res, name), getattr(res, name + "_err")
         assert abs(got - true) < 4 * err, (name, got, err, true)
         # the Laplace errors before the jackknife's scale: information the ratio alone lacks
-        unit, unit_plain = err / np.sqrt(res.error_scale), getattr(plain, name + "_err") / np.sqrt(plain.error_scale)
+        unit = err / np.sqrt(res.error_scales[name])
+        unit_plain = getattr(plain, name + "_err") / np.sqrt(plain.error_scales[name])
         assert unit < 0.95 * unit_plain, (name, unit / unit_plain)
     assert abs(res.vx - scene.velocity[0]) < 0.02 * speed and abs(res.vy - scene.velocity[1]) < 0.02 * speed
 
@@ -119,7 +125,7 @@ def test_joint_bound_counts_the_conditioned_psd(oblique_pairs):
     _, res = oblique_pairs
     data, theta, free = res.problem.args, np.asarray(res.problem.theta), np.asarray(res.problem.free)
     bound = joint_crb(theta, data, free, include_priors=True)
-    unit = np.array([res.vx_err, res.vy_err, res.a_err]) / np.sqrt(res.error_scale)
+    unit = np.array([getattr(res, n + "_err") / np.sqrt(res.error_scales[n]) for n in ("vx", "vy", "a")])
     got = np.concatenate([np.asarray(bound.speed_sd), [float(bound.a_sd)]])
     np.testing.assert_allclose(got, unit, rtol=0.02)
     ratio_only = joint_crb(theta, data._replace(log_c22=None), free, include_priors=True)
@@ -291,7 +297,8 @@ def test_the_cross_pair_chain_sharpens_the_fit(oblique, oblique_pairs):
     for name, true in (("vx", scene.velocity[0]), ("vy", scene.velocity[1]), ("a", scene.a)):
         got, err = getattr(res, name), getattr(res, name + "_err")
         assert abs(got - true) < 3 * err, (name, got, err, true)
-        unit, unit_plain = err / np.sqrt(res.error_scale), getattr(plain, name + "_err") / np.sqrt(plain.error_scale)
+        unit = err / np.sqrt(res.error_scales[name])
+        unit_plain = getattr(plain, name + "_err") / np.sqrt(plain.error_scales[name])
         assert unit < 0.9 * unit_plain, (name, unit / unit_plain)
     assert "cross_pairs" in res.to_record()
 

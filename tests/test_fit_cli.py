@@ -143,9 +143,9 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     # the same Laplace covariance; the recording's scale is its segments' jackknife, the file's
     # (no segments) the bin correlation factor
     assert direct.error_method.startswith("laplace x jackknife") and "bin_factor" in row["error_method"]
-    ratio = np.sqrt(row["error_scale"] / direct.error_scale)
-    for name in ("vx_err", "a_err"):
-        assert row[name] == pytest.approx(getattr(direct, name) * ratio, rel=1e-6), name
+    for name in ("vx", "a"):
+        ratio = np.sqrt(row["error_scale"] / direct.error_scales[name])
+        assert row[name + "_err"] == pytest.approx(getattr(direct, name + "_err") * ratio, rel=1e-6), name
     # --ratio-only: the deep probe's conditioned PSD left out, as FitOptions(conditioned=False)
     res = runner.invoke(main, ["fit", str(spec), "--out", str(out), "--ratio-only", "--quiet"])
     assert res.exit_code == 0, res.output

@@ -51,6 +51,18 @@ def test_linear_model_shifts_are_exact_refits_and_variance_is_the_real_one():
         float(jackknife.pooled_scale(var, var_unit, free)))
 
 
+def test_own_scales_keep_each_ratio_and_pool_the_rest():
+    var_unit = np.array([1.0, 4.0, 2.0, 3.0, 0.0])
+    var_jk = np.array([1.2, 10.0, 6.0, 30.0, 0.0])          # ratios 1.2, 2.5, 3, 10, (fixed)
+    own = np.array([True, True, True, False, True])
+    pooled, scales = (np.asarray(v) for v in jackknife.own_scales(var_jk, var_unit, own, 1.5))
+    assert float(pooled) == pytest.approx((1.2 + 2.5 + 3.0) / 3)
+    # the first ratio is below the floor; the fourth parameter is not its own, the fixed one pooled
+    np.testing.assert_allclose(scales, [1.5, 2.5, 3.0, pooled, pooled])
+    pooled, scales = jackknife.own_scales(var_jk, var_unit, np.zeros(5, bool), 1.0)
+    assert np.isnan(float(pooled)) and np.all(np.isnan(np.asarray(scales)))
+
+
 def test_the_fits_own_jacobian_gives_the_same_shifts():
     # lsq.least_squares keeps its Jacobian at the optimum (LsqResult.jac): passed in, linear_shifts skips
     # its own forward-mode pass (the biggest part of its compilation) and must not change a number
