@@ -351,10 +351,18 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, mi
             if bool(f.ok):
                 speeds.append(float(f.speed))
                 counts.append(int(band[p].sum()))
-    if not speeds:
-        return None
     nperseg = 2 * (np.asarray(spec.omega).size - 1)
     fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
+    if not speeds:
+        # no pair has a slope to go by: a slow slip at low SNR, whose band is a few Hz and 1-3 bins wide
+        # (speed_vs_error's 10 dB, 1.5 cm/s recording: 3 + 1 bins at 512, 9 + 6 at 2048). Stretch the
+        # widest band to ``min_band_bins`` by its bin count alone; a band of no bins stays as it is
+        n_best = int(band.sum(axis=-1).max())
+        if n_best == 0 or not min_band_bins:
+            return None
+        finer = int(resolution_segment(np.inf, fs, np.asarray(depths, float), n_samples, n_band=n_best,
+                                       nperseg=nperseg, min_band_bins=min_band_bins))
+        return finer if finer > nperseg else None
     fast = int(np.argmax(speeds))
     finer = int(resolution_segment(speeds[fast], fs, np.asarray(depths, float), n_samples,
                                    n_band=counts[fast], nperseg=nperseg, min_band_bins=min_band_bins))
