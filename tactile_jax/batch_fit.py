@@ -45,8 +45,8 @@ import numpy as np
 
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
-from .fit import (MIN_PAIR_BAND_BINS, FitOptions, conditioned_fields, dominant_line, joint_jackknife, leakage_only,
-                  physics_settled, resolution_segment)
+from .fit import (MIN_PAIR_BAND_BINS, OWN_SCALE_PARAMS, FitOptions, conditioned_fields, dominant_line,
+                  joint_jackknife, leakage_only, physics_settled, resolution_segment)
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, STEP_TOL, least_squares
 from .prewhiten import filter_gain
@@ -550,10 +550,9 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     best = jnp.argmin(chi2)
     fit = jax.tree_util.tree_map(lambda t: t[best], fits)
     # the error bars' variance scale from the delete-one-segment jackknife, as ``fit_recording``'s
-    _, _, pooled, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx,
-                                          overlap, fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None,
-                                          jac=fit.jac)
-    return fit, free, scale, jnp.where(jnp.isfinite(scale[0]), jnp.maximum(pooled, fit.redchi), jnp.nan)
+    *_, scale = joint_jackknife(fit.theta, free, data, stage["loo_log_ratio"], stage["loo_shallow"], idx, overlap,
+                                fit.redchi, c22_k=stage["loo_c22"] if options.conditioned else None, jac=fit.jac)
+    return fit, free, scale
 
 
 def _summarise_pair(pair, n_band, known, vel, options):
@@ -590,10 +589,10 @@ def _summarise_pair(pair, n_band, known, vel, options):
                 n_bins=jnp.sum(jnp.where(fitted, pair.n_data, 0)), enough=jnp.any(fitted))
 
 
-def _summarise_joint(fit, free, known, vel, n_band, scale, pooled):
+def _summarise_joint(fit, free, known, vel, n_band, scale):
     redchi = fit.redchi
-    # the jackknife's scales (P,) (``fit.joint_jackknife``: vx, vy, a each their own, the rest ``pooled``),
-    # else max(redchi, 1); lsq's cov carries redchi
+    # the jackknife's scales (P,) (``fit.joint_jackknife``: vx, vy, a each their own, the rest the pooled
+    # one), else max(redchi, 1); lsq's cov carries redchi
     used = jnp.where(jnp.isfinite(scale), scale, jnp.maximum(redchi, 1.0))
     inflate = jnp.where(redchi > 0, used / jnp.where(redchi > 0, redchi, 1.0), 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diagonal(fit.cov) * inflate, 0, None))
@@ -610,7 +609,8 @@ def _summarise_joint(fit, free, known, vel, n_band, scale, pooled):
                 a_err=jnp.where(weak, jnp.nan, a_err), a_weak=weak, gain=gain, gain_err=gain_err,
                 redchi=redchi, chi2=fit.chi2, cond=fit.cond, converged=fit.converged | settled, settled=settled,
                 finite=jnp.all(jnp.isfinite(fit.theta)) & jnp.isfinite(fit.chi2),
-                n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS, error_scale=pooled)
+                n_bins=jnp.sum(n_band), enough=jnp.sum(n_band) >= _MIN_BINS,
+                error_scale=scale[len(OWN_SCALE_PARAMS)])            # the pooled one (NaN: no jackknife)
 
 
 @partial(jax.jit, static_argnames=("options", "model", "length", "n_fit", "kernel", "dof", "bin_factor", "group",
@@ -638,9 +638,9 @@ def _fit_stage(stage, depths, gains, velocity, known, *, options: FitOptions, mo
         pair = _pair_fits(st, d, g, vel, kn, n_fit, options, offsets_k, log_w, bin_factor, solver, span)
         if model == "pair":
             return _summarise_pair(pair, n_band, kn, vel, options)
-        fit, free, scale, pooled = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
+        fit, free, scale = _joint_fit(st, d, g, vel, kn, i0, pair, options, length, kmat, banded, rel_grid, dof,
                                       bin_factor, overlap)
-        return _summarise_joint(fit, free, kn, vel, n_band, scale, pooled)
+        return _summarise_joint(fit, free, kn, vel, n_band, scale)
 
     xs = (stage, depths, gains, velocity, known)
     return jax.lax.map(lambda args: one(*args), xs, batch_size=group)

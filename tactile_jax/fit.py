@@ -330,7 +330,8 @@ MIN_PAIR_BAND_BINS = 24
 _MIN_SEGMENTS = 6
 #: fewest segments (tapers) for jackknife error bars; below, the Laplace errors x bin_factor
 _MIN_JACKKNIFE = 5
-_PHYSICS = ("vx", "vy", "a")      # the parameters with their own error scale (theta[:3])
+#: the parameters with their own error scale (theta[:3]); every later one has the pooled scale
+OWN_SCALE_PARAMS = ("vx", "vy", "a")
 
 
 def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, min_band_bins: int = 0) -> int | None:
@@ -351,21 +352,20 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, mi
             if bool(f.ok):
                 speeds.append(float(f.speed))
                 counts.append(int(band[p].sum()))
-    nperseg = 2 * (np.asarray(spec.omega).size - 1)
-    fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
-    if not speeds:
+    if speeds:
+        fast = int(np.argmax(speeds))
+        speed, n_band = speeds[fast], counts[fast]
+    else:
         # no pair has a slope to go by: a slow slip at low SNR, whose band is a few Hz and 1-3 bins wide
         # (speed_vs_error's 10 dB, 1.5 cm/s recording: 3 + 1 bins at 512, 9 + 6 at 2048). Stretch the
         # widest band to ``min_band_bins`` by its bin count alone; a band of no bins stays as it is
-        n_best = int(band.sum(axis=-1).max())
-        if n_best == 0 or not min_band_bins:
+        speed, n_band = np.inf, int(band.sum(axis=-1).max())
+        if n_band == 0 or not min_band_bins:
             return None
-        finer = int(resolution_segment(np.inf, fs, np.asarray(depths, float), n_samples, n_band=n_best,
-                                       nperseg=nperseg, min_band_bins=min_band_bins))
-        return finer if finer > nperseg else None
-    fast = int(np.argmax(speeds))
-    finer = int(resolution_segment(speeds[fast], fs, np.asarray(depths, float), n_samples,
-                                   n_band=counts[fast], nperseg=nperseg, min_band_bins=min_band_bins))
+    nperseg = 2 * (np.asarray(spec.omega).size - 1)
+    fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
+    finer = int(resolution_segment(speed, fs, np.asarray(depths, float), n_samples, n_band=n_band,
+                                   nperseg=nperseg, min_band_bins=min_band_bins))
     return finer if finer > nperseg else None
 
 
@@ -844,13 +844,13 @@ def _error_scale(res, fit, free, data, spec, leave_one_out, idx, term=None) -> n
     var, var_unit, pooled, scale = (np.asarray(v) for v in joint_jackknife(
         fit.theta, jnp.asarray(free), data, amplitude_ratio(leave_one_out).log_ratio, leave_one_out.psd[:, 0::2],
         idx, k / leave_one_out.dof, fit.redchi, shift_k, c22_k, chain_k, fit.jac))
-    ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(_PHYSICS)
+    ratios = {name: float(var[i] / var_unit[i]) for i, name in enumerate(OWN_SCALE_PARAMS)
               if free[i] and var_unit[i] > 0}
     res.jackknife = {"n_segments": k, "overlap": k / leave_one_out.dof, "variance_ratio": ratios,
                      "pooled": float(pooled), "redchi": redchi, "fallback": fallback}
     if not np.all(np.isfinite(scale)):
         return np.full(len(free), fallback)
-    res.error_scale = float(max(pooled, redchi))
+    res.error_scale = float(scale[len(OWN_SCALE_PARAMS)])        # the pooled one, floored at redchi
     res.error_method = f"laplace x jackknife ({k} segments; vx, vy, a each their own)"
     return scale
 
@@ -893,7 +893,7 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
                       log_xy_c=jnp.where(data.mask_xy & ok, chain_k.log_c[:, :, idx], data.log_xy_c))
     shifts, unit = jackknife.linear_shifts(jm.residuals, theta, data, fields, free, jac)
     var, var_unit = jnp.diag(jackknife.covariance(shifts, overlap=overlap)), jnp.diag(unit)
-    pooled, scale = jackknife.own_scales(var, var_unit, free & (jnp.arange(free.shape[0]) < len(_PHYSICS)), redchi)
+    pooled, scale = jackknife.own_scales(var, var_unit, free & (jnp.arange(free.shape[0]) < len(OWN_SCALE_PARAMS)), redchi)
     return var, var_unit, pooled, scale
 
 
@@ -1009,7 +1009,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
     redchi = float(fit.redchi)
     scale = np.asarray(scale, float)
     cov = np.asarray(fit.cov) * (np.sqrt(np.outer(scale, scale)) / redchi if redchi > 0 else 1.0)
-    res.error_scales = {name: float(scale[i]) for i, name in enumerate(_PHYSICS) if free[i]}
+    res.error_scales = {name: float(scale[i]) for i, name in enumerate(OWN_SCALE_PARAMS) if free[i]}
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     res.converged = bool(fit.converged)
     res.redchi, res.chi2 = float(fit.redchi), float(fit.chi2)
