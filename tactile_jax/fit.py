@@ -1096,7 +1096,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
     res.problem = FitProblem(
         residuals=jm.residuals, args=data, theta=theta, free=tuple(bool(f) for f in free), names=tuple(names),
         lower=_lower(len(theta)), upper=_upper(len(theta)), cov=cov, scale=res.error_scale,
-        to_physical=_to_physical(curvature_radius))
+        to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scale / res.error_scale))
 
 
 def _lower(p):

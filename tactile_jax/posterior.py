@@ -3,7 +3,8 @@
 ``run_emcee`` explores the free parameters of a :class:`~tactile_jax.problem.FitProblem`
 with emcee's affine-invariant ensemble (stretch move). The log-probability is
 ``-0.5 * sum(r**2) / scale`` with a flat prior on the free parameters inside
-``[lower, upper]`` in the internal (fitting) parametrisation, evaluated for the
+``[lower, upper]`` in the internal (fitting) parametrisation (residuals taken at
+the point pulled toward the fit by ``problem.stretch``, where given), evaluated for the
 whole ensemble at once by one jit-compiled, vmapped JAX function. Sampler
 trouble comes back as data (``PosteriorResult.warnings``), never as an
 exception. ``to_inference_data`` converts a result to ArviZ (optional
@@ -93,11 +94,12 @@ class PosteriorResult(NamedTuple):
 # ---------------------------------------------------------------- log-probability
 
 @partial(jax.jit, static_argnames=("residuals",))
-def _log_prob_batch(theta_free, residuals, args, theta0, idx, lower, upper, scale):
+def _log_prob_batch(theta_free, residuals, args, theta0, idx, lower, upper, scale, stretch):
     """(n_walkers, n_free) free parameters -> (n_walkers,) log-probabilities (-inf outside the bounds)."""
+    centre = theta0[idx]
 
     def one(tf):
-        r = residuals(theta0.at[idx].set(tf), args)
+        r = residuals(theta0.at[idx].set(centre + (tf - centre) / stretch), args)
         lp = -0.5 * jnp.sum(jnp.square(r)) / scale
         inside = jnp.all((tf >= lower) & (tf <= upper))
         return jnp.where(inside & jnp.isfinite(lp), lp, -jnp.inf)
@@ -117,7 +119,8 @@ def make_log_prob(problem: FitProblem) -> Callable:
 
     Returns ``log_prob(theta_free)``: (n_walkers, n_free) numpy or jax array of the
     free internal parameters (units of ``problem.names``) -> (n_walkers,) numpy
-    float64 ``-0.5 * sum(r**2) / problem.scale``, or ``-inf`` outside
+    float64 ``-0.5 * sum(r**2) / problem.scale`` (``r`` at ``theta + (t - theta) / stretch``
+    when ``problem.stretch`` is given), or ``-inf`` outside
     ``[lower, upper]`` (inclusive; a flat prior in the internal parametrisation)
     or where the residuals are not finite. One jit-compiled vmapped function,
     shared between problems with the same residual function and shapes.
@@ -128,13 +131,17 @@ def make_log_prob(problem: FitProblem) -> Callable:
     lower = jnp.asarray(np.asarray(problem.lower, float)[idx], dtype)
     upper = jnp.asarray(np.asarray(problem.upper, float)[idx], dtype)
     scale = jnp.asarray(float(problem.scale), dtype)
+    stretch = np.ones(idx.size) if problem.stretch is None else np.asarray(problem.stretch, float)[idx]
+    if not np.all(np.isfinite(stretch) & (stretch > 0)):
+        raise ValueError(f"problem.stretch must be finite and > 0 on the free parameters, got {stretch}")
+    stretch = jnp.asarray(stretch, dtype)
     idx_j = jnp.asarray(idx)
     residuals, args = problem.residuals, problem.args
 
     def log_prob(theta_free):
         tf = jnp.asarray(theta_free, dtype)
         squeeze = tf.ndim == 1
-        lp = _log_prob_batch(jnp.atleast_2d(tf), residuals, args, theta0, idx_j, lower, upper, scale)
+        lp = _log_prob_batch(jnp.atleast_2d(tf), residuals, args, theta0, idx_j, lower, upper, scale, stretch)
         lp = np.asarray(lp, np.float64)
         return lp[0] if squeeze else lp
 

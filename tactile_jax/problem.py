@@ -25,13 +25,18 @@ class FitProblem(NamedTuple):
     cov: (P, P) Laplace (Gauss-Newton) covariance of ``theta``.
     scale: likelihood temperature (the variance scale of the covariance,
         ``FitResult.error_scale``: jackknife or reduced chi-square x bin
-        factor), so that sampler and Laplace widths agree. One number: where
-        vx, vy and a have their own jackknife scales (``FitResult.error_scales``),
-        their posterior widths are the pooled scale's, and differ from their
-        Laplace errors by sqrt(own / pooled).
+        factor), so that sampler and Laplace widths agree.
     to_physical: function ``(theta (..., P)) -> dict[name, array (...)]`` of
         the reported physical quantities (m/s, m, ...); vectorised over
         leading axes with numpy.
+    stretch: (P,) width factors about ``theta``, or None (all ones). The
+        sampled density at ``t`` is ``exp(-0.5 * sum(r(theta + (t - theta) / stretch)**2) / scale)``:
+        the tempered posterior mapped by ``t = theta + stretch * (u - theta)``,
+        so its widths are ``stretch`` times the tempered ones and its
+        correlations and shape are kept. ``fit`` sets ``sqrt(s_i / scale)``
+        for vx, vy and a, which have their own jackknife scales ``s_i``
+        (``FitResult.error_scales``), so that sampler and Laplace widths agree
+        for them too.
     """
 
     residuals: Callable
@@ -44,3 +49,4 @@ class FitProblem(NamedTuple):
     cov: np.ndarray
     scale: float
     to_physical: Callable
+    stretch: np.ndarray | None = None

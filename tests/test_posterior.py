@@ -100,6 +100,27 @@ def test_log_prob_bounds_and_nonfinite(problem):
     assert bad(np.array([[m, c]]))[0] == -np.inf
 
 
+def test_stretch_widens_one_parameter_and_keeps_the_correlation(problem, result):
+    """fit's per-parameter error scales: a stretch of 2 on m doubles its posterior sd, leaves c's and the
+    m-c correlation as they were, and its log-prob at fit + 2 delta is the plain one at fit + delta."""
+    stretch = np.array([2.0, 1.0, 1.0])
+    wide = problem._replace(cov=problem.cov * np.outer(stretch, stretch), stretch=stretch)
+    delta = np.array([0.05, -0.02])
+    plain_lp, wide_lp = make_log_prob(problem), make_log_prob(wide)
+    assert wide_lp(problem.theta[:2] + stretch[:2] * delta) == pytest.approx(plain_lp(problem.theta[:2] + delta))
+    post = run_emcee(wide, n_walkers=32, n_steps=3000, seed=3)
+    sd = np.sqrt(np.diag(problem.cov))
+    m, c = (post.samples[k].ravel() for k in ("m", "c"))
+    assert np.std(m) == pytest.approx(2 * sd[0], rel=0.15)
+    assert np.std(c) == pytest.approx(sd[1], rel=0.15)
+    corr = np.corrcoef(m, c)[0, 1]
+    assert corr == pytest.approx(np.corrcoef(result.samples["m"].ravel(), result.samples["c"].ravel())[0, 1],
+                                 abs=0.05)
+    assert abs(corr) > 0.3                 # the toy's m and c are correlated, so keeping it means something
+    with pytest.raises(ValueError, match="stretch"):
+        make_log_prob(problem._replace(stretch=np.array([0.0, 1.0, 1.0])))
+
+
 def test_too_few_walkers(problem):
     with pytest.raises(ValueError, match="n_walkers"):
         run_emcee(problem, n_walkers=3, n_steps=10)
