@@ -30,7 +30,9 @@ jackknife (never below redchi; ``jackknife``). Unlike ``fit.fit_recording`` the 
 Welch segment length for the whole chunk: the default for the recordings' N
 (not for the N - p samples prewhitening leaves), refined for slow slips by
 ``fit``'s rule applied to the chunk's median record (``resolution_nperseg``; a
-second spectral pass only then), and reports no profile-likelihood bounds.
+second spectral pass only then); a record that segment leaves ``no_band`` but
+that wants a longer one is refitted at its own (``_refit_narrow``). The batch
+reports no profile-likelihood bounds.
 """
 
 from __future__ import annotations
@@ -165,28 +167,50 @@ def _main_band(band):
 
 
 
-def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,
-                       min_band_bins: int = MIN_PAIR_BAND_BINS) -> int:
-    """The chunk's Welch segment length: ``fit.resolution_segment`` for each record, their median.
+def resolution_wants(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,
+                     min_band_bins: int = MIN_PAIR_BAND_BINS) -> np.ndarray:
+    """(B,) the Welch segment each record wants (``fit.resolution_segment``), 0 where it has nothing to go by.
 
-    Each record wants the segment that resolves its faster pair's band (``fit.resolution_segment``:
-    at most 0.15 of log ratio per bin at its Eq. 6 speed, and at least ``min_band_bins`` usable
-    bins given the ``n_band`` it has at ``nperseg0``), and at least ``nperseg0`` (the default).
-    One length per chunk (one compiled shape): the median record's.
+    A record wants the segment that resolves its faster pair's band (at most 0.15 of log ratio per
+    bin at its Eq. 6 speed, and at least ``min_band_bins`` usable bins given the ``n_band`` it has
+    at ``nperseg0``), and at least ``nperseg0`` (the default). A record with no Eq. 6 speed on
+    either pair but some usable bins (a slow slip at low SNR: a band 1-3 bins wide) wants its
+    widest band stretched to ``min_band_bins`` by its bin count alone, as ``fit._resolution_nperseg``.
     speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m, n_band: (B, 2) or None.
     """
     v = np.where(line_ok, speed0, np.nan)
     have = np.isfinite(v).any(axis=-1)
-    if not have.any():
-        return nperseg0
-    fast = np.argmax(np.where(np.isfinite(v[have]), v[have], -np.inf), axis=-1)
-    v_fast = np.take_along_axis(v[have], fast[:, None], axis=-1)[:, 0]
+    fast = np.argmax(np.where(np.isfinite(v), v, -np.inf), axis=-1)[:, None]
+    v_fast = np.take_along_axis(v, fast, axis=-1)[:, 0]
     count = None
-    if n_band is not None:
-        count = np.take_along_axis(np.asarray(n_band)[have], fast[:, None], axis=-1)[:, 0]
-    want = np.maximum(resolution_segment(v_fast, fs[have], depths[have], n_samples, n_band=count,
-                                         nperseg=nperseg0, min_band_bins=min_band_bins), nperseg0)
-    return int(np.sort(want)[(want.size - 1) // 2])
+    if n_band is not None and min_band_bins:
+        n_band = np.asarray(n_band)
+        count = np.where(have, np.take_along_axis(n_band, fast, axis=-1)[:, 0], n_band.max(axis=-1))
+        have |= count > 0                       # no slope: the bin count alone (speed inf)
+        v_fast = np.where(np.isfinite(v_fast), v_fast, np.inf)
+        count = count[have]
+    wants = np.zeros(v.shape[0], int)
+    if have.any():
+        wants[have] = np.maximum(resolution_segment(v_fast[have], np.asarray(fs)[have], np.asarray(depths)[have],
+                                                    n_samples, n_band=count, nperseg=nperseg0,
+                                                    min_band_bins=min_band_bins), nperseg0)
+    return wants
+
+
+def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,
+                       min_band_bins: int = MIN_PAIR_BAND_BINS) -> int:
+    """The chunk's Welch segment length: the median of ``resolution_wants`` over the records that want one.
+
+    One length per chunk (one compiled shape); ``nperseg0`` when no record has anything to go by.
+    A record the median leaves with too few bins is refitted at its own (``fit_chunk``).
+    """
+    return _median_want(resolution_wants(speed0, line_ok, fs, depths, n_samples, nperseg0, n_band, min_band_bins),
+                        nperseg0)
+
+
+def _median_want(wants, nperseg0: int) -> int:
+    wants = np.sort(wants[wants > 0])
+    return int(wants[(wants.size - 1) // 2]) if wants.size else nperseg0
 
 
 @partial(jax.jit, static_argnames=("options", "nperseg", "joint"))
@@ -710,7 +734,7 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     velocity = jnp.abs(jnp.asarray(meta.velocity, dtype))
     known = jnp.asarray(meta.known, bool)
     t0 = time.perf_counter()
-    nperseg = program.nperseg
+    nperseg, wants = program.nperseg, None
     if program.resolution and nperseg is None and options.method == "welch":
         # the default for the recording's N, not for the N - p samples that prewhitening leaves
         # (8192 -> 1024, not 512: coarse bins bias the speed of slow slips, see benchmarks/README.md)
@@ -721,10 +745,11 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
         nperseg0 = nperseg
         # the pair model wants MIN_PAIR_BAND_BINS usable bins, the joint model FitOptions.min_band_bins
         floor = MIN_PAIR_BAND_BINS if program.model == "pair" else options.min_band_bins
-        finer = resolution_nperseg(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
-                                   np.asarray(meta.depths), x.shape[-1], nperseg0,
-                                   n_band=np.asarray(stage["band"]).sum(axis=-1) if floor else None,
-                                   min_band_bins=floor)
+        wants = resolution_wants(np.asarray(stage["speed0"]), np.asarray(stage["line_ok"]), np.asarray(meta.fs),
+                                 np.asarray(meta.depths), x.shape[-1], nperseg0,
+                                 n_band=np.asarray(stage["band"]).sum(axis=-1) if floor else None,
+                                 min_band_bins=floor)
+        finer = _median_want(wants, nperseg0)
         if finer > nperseg0:
             nperseg = finer
             stage = _spectral_stage(x, fs, depths, gains, options=options, nperseg=nperseg, joint=joint)
@@ -747,7 +772,34 @@ def fit_chunk(signals, meta: ChunkMeta, program: FitProgram) -> ChunkFit:
     out = {k: np.asarray(v) for k, v in out.items()}
     program.timings["fit"] += time.perf_counter() - t1
     k0 = np.asarray(stage["k0"])
-    return _statuses(out, k0, np.asarray(meta.known, bool), program)
+    fit = _statuses(out, k0, np.asarray(meta.known, bool), program)
+    if wants is not None:
+        fit = _refit_narrow(signals, meta, program, fit, wants, nperseg)
+    return fit
+
+
+def _refit_narrow(signals, meta: ChunkMeta, program: FitProgram, fit: ChunkFit, wants, nperseg: int) -> ChunkFit:
+    """Records that the chunk's segment left ``no_band`` but that want a longer one, refitted at theirs.
+
+    The chunk shares one segment length, its median record's; a slow, noisy record among faster ones
+    has a band of 1-3 bins there. Those records are fitted again, grouped by the segment they want
+    (one more compiled shape per group), and their rows say so.
+    """
+    redo = (fit.status == "no_band") & (wants > nperseg)
+    if not redo.any():
+        return fit
+    merged = {k: None if v is None else np.array(v, copy=True) for k, v in fit._asdict().items()}
+    for want in np.unique(wants[redo]):
+        sel = np.flatnonzero(redo & (wants == want))
+        sub = dataclasses.replace(program, nperseg=int(want), resolution=False, timings=program.timings)
+        part = fit_chunk(np.asarray(signals)[sel], ChunkMeta(*(np.asarray(m)[sel] for m in meta)), sub)
+        for k, v in part._asdict().items():
+            if merged[k] is not None:
+                merged[k][sel] = v
+        notes = [f"refitted with {int(want)}-sample segments (the chunk's {nperseg} left {int(n)} usable bins)"
+                 for n in fit.n_bins[sel]]
+        merged["message"][sel] = [f"{note}; {m}" if m else note for note, m in zip(notes, part.message)]
+    return ChunkFit(**merged)
 
 
 def _statuses(out: dict, k0, known, program: FitProgram) -> ChunkFit:

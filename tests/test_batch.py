@@ -265,6 +265,51 @@ def test_resolution_nperseg_follows_the_slowest_majority():
     mixed = np.array([[0.2, 0.0], [0.2, 0.0], [0.005, 0.0]])                        # the median record's
     assert rule(mixed, ok, fs, d, 65536, 1024) == 1024
     assert rule(mixed, np.zeros((3, 2), bool), fs, d, 65536, 1024) == 1024          # no speed: the default
+    # no speed on either pair, but a band of 3 + 1 bins (speed_vs_error's 10 dB, 1.5 cm/s, 8 s recording, which
+    # ended no_band): stretched by its widest band's count, 8 / 3 x 512 = 1365 -> 2048, as fit_recording does
+    none = np.zeros((3, 2), bool)
+    assert rule(mixed, none, fs, d, 8000, 512, n_band=np.array([[3, 1]] * 3), min_band_bins=8) == 2048
+    assert rule(mixed, none, fs, d, 8000, 512, n_band=np.array([[3, 1]] * 3), min_band_bins=0) == 512
+    assert rule(mixed, none, fs, d, 8000, 512, n_band=np.zeros((3, 2), int), min_band_bins=8) == 512
+    # one such record beside two with a fast slip: the median record's (the default)
+    some = np.array([[True, False], [True, False], [False, False]])
+    assert rule(mixed, some, fs, d, 8000, 512, n_band=np.array([[40, 40], [40, 40], [3, 1]]), min_band_bins=8) == 512
+    wants = batch_fit.resolution_wants(mixed, some, fs, d, 8000, 512, n_band=np.array([[40, 40], [40, 40], [3, 1]]),
+                                       min_band_bins=8)
+    assert wants.tolist() == [512, 512, 2048]              # the third is refitted at 2048 if it ends no_band
+    assert batch_fit.resolution_wants(mixed, none, fs, d, 8000, 512).tolist() == [0, 0, 0]
+
+
+@pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
+                    reason="two batch programs compile for ~110 s: set TACTILE_JAX_SLOW=1")
+@pytest.mark.parametrize("model", ["pair", "joint"])
+def test_a_narrow_low_snr_band_gets_finer_bins(model):
+    """test_stability's 10 dB, 1.5 cm/s, 8 s recording (3 + 1 band bins at 512 samples, no Eq. 6 slope) through
+    the batch; before session 20 it ended no_band there. Alone (joint), the chunk's segment is stretched by the
+    band's bin count to 2048 samples; beside two faster records (pair), the chunk keeps the default and the
+    record is refitted at its own 2048 (``_refit_narrow``)."""
+    from tactile_jax.scene import RandomTexture
+    scene = Scene(texture=RandomTexture(), velocity=(0.015, 0.0), contact_radius=1.5e-3, snr_db=10.0,
+                  duration=8.0, seed=415)
+    x = [simulate(scene).signals]
+    if model == "pair":
+        x += [simulate(Scene(velocity=(0.15, 0.0), contact_radius=a, snr_db=40.0, duration=8.0, seed=1)).signals
+              for a in (1.0e-3, 1.5e-3)]                  # 71 and 63 band bins at 512: they want 512
+    b = len(x)
+    meta = batch_fit.ChunkMeta(fs=np.full(b, 1000.0), depths=np.tile(DEPTHS, (b, 1)), gains=np.ones((b, 2)),
+                               velocity=np.zeros((b, 2)), known=np.zeros(b, bool), curvature_radius=np.full(b, 0.03))
+    program = batch_fit.FitProgram(model=model)
+    rows = batch_fit.chunk_rows(program(np.stack(x), meta), meta, ["chunk"] * b, range(b), model=model,
+                                options=program.options)
+    row = rows[0]
+    assert row["status"] == "ok" and row["n_bins"] >= 8, row
+    assert abs(row["vx"] - 0.015) < 3 * row["vx_err"] and abs(row["a"] - 1.5e-3) < 3 * row["a_err"], row
+    if model == "pair":
+        assert program.last_nperseg == 512, program.last_nperseg
+        assert row["message"].startswith("refitted with 2048-sample segments (the chunk's 512 left"), row["message"]
+        assert all(r["status"] == "ok" and "refitted" not in r["message"] for r in rows[1:]), rows[1:]
+    else:
+        assert program.last_nperseg == 2048 and "refitted" not in row["message"], (program.last_nperseg, row)
 
 
 @pytest.mark.skipif(not os.environ.get("TACTILE_JAX_SLOW"),
