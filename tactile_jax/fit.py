@@ -172,7 +172,8 @@ class FitResult:
     ``cross_pairs``: how many blocks of the y pair's chain on the x pair the fit used
     (``FitOptions.cross_pairs``; 0 where the spectra have no x-y entries). ``converged``: the
     solver reported success, or a full Gauss-Newton step would move every physical parameter by
-    less than ``lsq.STEP_TOL`` sigma (a warning then names the texture knots still moving).
+    less than ``lsq.STEP_TOL`` sigma, or 256 more Dogleg steps moved each by less than that
+    (a warning then says that texture knots were still moving).
     """
 
     vx: float | None = None
@@ -692,7 +693,8 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
         theta1 = np.where(np.isfinite(np.asarray(fit.theta)), np.asarray(fit.theta), theta0)
         fit = least_squares(jm.residuals, jnp.asarray(theta1), data, jnp.asarray(free), solver=options.solver,
                             max_steps=256, n_prior=n_prior, rtol=_TOL["full"], atol=_TOL["full"])
-    fit = _rescue(res, fit, data, free, n_prior, options.solver)
+    fit, settled = _rescue(res, fit, data, free, n_prior, options.solver)
+    settled_theta = np.asarray(fit.theta) if settled else None
     if term is not None:
         fit, data = _refit_window_term(fit, free, data, term, lr_err, mask_h, n_prior, options.solver)
     fit, free = _select_model(res, fit, free, data, options, n_prior, spec.bin_factor, noise0)
@@ -709,7 +711,9 @@ def _fit_cross_spectra(spec, depths, options, curvature_radius, leave_one_out=No
                     "log_ratio_err": np.where(valid, ratio_np[1][:, idx], np.nan), "mask": mask_h}
     if n_leak:
         res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")
-    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, scale=scale, window_weak=window_weak)
+    settled = settled_theta is not None and np.array_equal(np.asarray(fit.theta), settled_theta)  # no refit since
+    _fill(res, fit, names, free, data, options, d1, d2, curvature_radius, scale=scale, window_weak=window_weak,
+          settled=settled)
     _model_note(res)
     res.data = data
     # dominant wavenumbers (Eq. 4 / 17) where a pair's shallow spectrum has a single dominant line
@@ -983,27 +987,50 @@ def _settled_physics(res: FitResult, fit: LsqResult, names, free) -> bool:
     return True
 
 
-def _rescue(res: FitResult, fit: LsqResult, data, free, n_prior, solver):
+def _rescue(res: FitResult, fit: LsqResult, data, free, n_prior, solver) -> tuple[LsqResult, bool]:
     """LM stopped at ``max_steps`` with a physical parameter still moving: go on with Dogleg from there.
 
+    Returns the fit to keep and whether its physics is settled by that continuation.
     Session 18: on coverage scene 4 (1.2 deg off x) redrawn, 7 of 30 draws stopped so with the minor
     vy 0.15-0.7 sigma from the step's end; from LM's stopping point Dogleg converged in 48 steps
     (decrement 4e-8) where LM gained < 1.7 chi2 in 512. Costs one more compiled program (about 20 s with
-    the chain), only in the processes that need it. Kept only if it converged.
+    the chain), only in the processes that need it. Kept if it converged.
+    Session 20: on coverage scene 708 (exactly along y, vx consistent with 0) Dogleg did not converge
+    either: the low-k texture knots crawl down as vx does. Its 256 steps moved vx, vy and a by at most
+    0.05 sd (of LM's covariance) and the knots by up to 0.65 sd; 2048 more LM steps left the physics
+    unchanged to 1e-4. Where
+    Dogleg moves every free non-texture parameter by less than ``STEP_TOL`` of its sd, that measured
+    displacement settles the physics, as ``_settled_physics`` does from the linearised step: the stop
+    with the lower chi-square is kept, with a warning.
     """
     if solver != "optimistix" or bool(fit.converged) or not _physics_steps(fit, free)[0] >= STEP_TOL:
-        return fit
+        return fit, False
     trial = least_squares(jm.residuals, fit.theta, data, jnp.asarray(free), solver=DOGLEG, max_steps=256,
                           n_prior=n_prior, rtol=_TOL["full"], atol=_TOL["full"])
-    if not (bool(trial.converged) and np.all(np.isfinite(np.asarray(trial.theta)))):
-        return fit
-    res.warnings.append(f"Levenberg-Marquardt stopped at its step limit in a curved valley; optimistix's Dogleg "
-                        f"went on from there and converged in {int(trial.n_steps)} steps")
-    return trial
+    theta, theta0 = np.asarray(trial.theta), np.asarray(fit.theta)
+    if not (np.all(np.isfinite(theta)) and np.isfinite(float(trial.chi2))):
+        return fit, False
+    if bool(trial.converged):
+        res.warnings.append(f"Levenberg-Marquardt stopped at its step limit in a curved valley; optimistix's "
+                            f"Dogleg went on from there and converged in {int(trial.n_steps)} steps")
+        return trial, False
+    free = np.asarray(free, bool)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        moved = np.abs(theta - theta0) / np.sqrt(np.diag(np.asarray(fit.cov)))
+    physics = free & (np.arange(free.size) < jm.N_FIXED_PARAMS)
+    if not (physics.any() and np.all(np.isfinite(moved[physics])) and moved[physics].max() < STEP_TOL):
+        return fit, False
+    texture = free & ~physics
+    res.warnings.append(
+        f"the solver stopped at its step limit with texture knots still moving (256 more Dogleg steps moved "
+        f"them by up to {np.nanmax(moved[texture], initial=0.0):.2f} sigma and the speeds, radius and gains by at "
+        f"most {moved[physics].max():.3f} sigma), so the latter's values and errors stand; the texture spectrum "
+        "there may not")
+    return (trial if float(trial.chi2) < float(fit.chi2) else fit), True
 
 
 def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, curvature_radius, *, scale,
-          window_weak=False):
+          window_weak=False, settled=False):
     theta = np.asarray(fit.theta)
     # lsq scaled the covariance by redchi; ``scale`` (``_error_scale``, one per parameter) replaces that factor
     redchi = float(fit.redchi)
@@ -1026,7 +1053,7 @@ def _fill(res: FitResult, fit: LsqResult, names, free, data, options, d1, d2, cu
     res.correlations = sub / np.outer(dsd, dsd)
     notes = []
     if not res.converged:
-        res.converged = _settled_physics(res, fit, names, free)
+        res.converged = settled or _settled_physics(res, fit, names, free)
     if not res.converged:
         res.status = "not_converged"
         notes.append(f"the solver did not converge ({options.solver})")

@@ -189,6 +189,20 @@ def test_a_narrow_low_snr_band_gets_finer_bins():
 
 
 @slow
+def test_slip_along_an_axis_settles_by_continuation():
+    """Coverage scene 708 (session 20): slip exactly along y, so vx (0.001 cm/s) is consistent with 0 and the low-k
+    texture knots crawl down with it. LM and Dogleg both stop at their step limits; Dogleg's 256 steps move vx, vy
+    and a by < 0.1 sigma, so the fit is settled (``fit._rescue``), not ``not_converged``, with a warning."""
+    scene = Scene(texture=RandomTexture(), velocity=(9.538793206572115e-06, 0.05168213796369707),
+                  contact_radius=0.0009255734626374513, snr_db=45.44308981288118, seed=377259081)
+    res = fit_recording(simulate(scene), FitOptions())
+    assert res.status == "ok" and res.converged, (res.status, res.message, res.warnings)
+    assert any("256 more Dogleg steps" in w for w in res.warnings), res.warnings
+    assert res.vx_upper is not None and res.vx_upper > abs(scene.velocity[0])
+    assert_honest(res, _truth(scene))
+
+
+@slow
 def test_large_contact_is_a_bound_not_a_confident_radius():
     scene = SCENES["contact_50mm"]
     res = fit_recording(simulate(scene), FitOptions())
