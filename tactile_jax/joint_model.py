@@ -224,7 +224,11 @@ def log_phi_at(log_k, log_k_knots, log_phi):
 
 
 def _log_phi(kx, ky, log_k_knots, log_phi):
-    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + 1e-300)
+    # k = 0 sits on the grid (omega = 0): the floor keeps the log and its gradient finite. At least the dtype's
+    # smallest normal number: 1e-300 underflows to 0 in float32 and made the chain's Jacobian NaN there
+    # (speed_vs_error's 10 dB recording fitted in float32: every error bar NaN, session 20)
+    floor = max(1e-300, float(jnp.finfo(jnp.result_type(kx, ky)).tiny))
+    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + floor)
     return log_phi_at(log_k, log_k_knots, log_phi)
 
 

@@ -23,6 +23,22 @@ def test_log_phi_is_scipys_cubic_spline_through_the_knots_and_constant_outside(n
     assert np.all(np.isfinite(np.asarray(grad)))
 
 
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_texture_spectrum_at_k_zero_has_a_finite_gradient(dtype):
+    """omega = 0 is a grid point, where a node can have kx = ky = 0. The floor under k^2 was 1e-300, which is 0
+    in float32: log(0) and a 0/0 gradient made every float32 error bar of the chain fit NaN (session 20)."""
+    knots = jnp.linspace(6.0, 10.0, 12, dtype=dtype)
+    phi = jnp.linspace(-20.0, -30.0, 12, dtype=dtype)
+
+    def f(kxy, phi):
+        return jm._log_phi(kxy[0], kxy[1], knots, phi)
+
+    k0 = jnp.zeros(2, dtype)
+    assert np.isfinite(float(f(k0, phi))) and float(f(k0, phi)) == pytest.approx(-20.0)
+    for g in jax.grad(f, argnums=(0, 1))(k0, phi):
+        assert g.dtype == dtype and np.all(np.isfinite(np.asarray(g))), g
+
+
 def test_the_spline_follows_the_simulators_texture_spectrum_better_than_straight_lines():
     # the default knot layout spans ~3.4 decades with 12 knots (fit.py); the random texture's
     # spectrum bends over one decade around k = 1 / correlation_length

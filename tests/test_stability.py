@@ -188,6 +188,35 @@ def test_a_narrow_low_snr_band_gets_finer_bins():
     assert abs(res.vx - 0.015) < 0.1 * 0.015
 
 
+_FLOAT32_FIT = """
+import dataclasses, json, numpy as np
+from tactile_jax.fit import FitOptions, fit_recording
+from tactile_jax.scene import RandomTexture, Scene, simulate
+scene = Scene(texture=RandomTexture(), velocity=(0.015, 0.0), contact_radius=1.5e-3, snr_db=10.0, duration=8.0, seed=415)
+rec = simulate(scene)
+res = fit_recording(dataclasses.replace(rec, signals=np.asarray(rec.signals, np.float32)), FitOptions())
+print(json.dumps({k: getattr(res, k) for k in ("status", "message", "precision", "vx", "vx_err", "a", "a_err")}))
+"""
+
+
+@slow
+def test_float32_joint_fit_of_a_narrow_noisy_band():
+    """The 10 dB recording above with x64 off (a subprocess: the suite runs in float64). Its chain Jacobian was
+    NaN at omega = 0 (a 1e-300 floor that float32 rounds to 0), so every error bar was NaN and the fit
+    ``not_converged`` (session 20)."""
+    import json
+    import subprocess
+    import sys
+    env = {**os.environ, "JAX_ENABLE_X64": "0"}
+    out = subprocess.run([sys.executable, "-c", _FLOAT32_FIT], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["precision"] == "float32" and res["status"] == "ok", res
+    for name, true in (("vx", 0.015), ("a", 1.5e-3)):
+        assert res[name + "_err"] is not None and math.isfinite(res[name + "_err"]) and res[name + "_err"] > 0, res
+        assert abs(res[name] - true) < N_SIGMA * res[name + "_err"], res
+
+
 @slow
 def test_slip_along_an_axis_settles_by_continuation():
     """Coverage scene 708 (session 20): slip exactly along y, so vx (0.001 cm/s) is consistent with 0 and the low-k
