@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._numerics import tiny
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
 from .fit import (MIN_PAIR_BAND_BINS, OWN_SCALE_PARAMS, FitOptions, conditioned_fields, dominant_line,
@@ -238,7 +239,7 @@ def _spectral_stage(signals, fs, depths, gains, *, options: FitOptions, nperseg,
         i_hi = jnp.max(jnp.where(any_band, idx, 0))
         white = spec.whitening if spec.whitening is not None else jnp.zeros((2, 1), shallow.dtype).at[:, 0].set(1.0)
         # the shallow spectra as the Welch average saw them (prewhitened): the pair model's kernel weights
-        log_seen = jnp.log(jnp.clip(whitened_psd(spec)[0::2], 1e-300, None))
+        log_seen = jnp.log(jnp.clip(whitened_psd(spec)[0::2], tiny(x), None))
         out = dict(omega=ratio.omega, log_ratio=ratio.log_ratio, err=ratio.log_ratio_err, band=band,
                    shallow=shallow, log_seen=log_seen, speed0=speed0, a0=a0, k0=k0, i_lo=i_lo, i_hi=i_hi, white=white,
                    line_ok=line.ok & jnp.isfinite(line.speed) & (line.speed > 0))
@@ -503,7 +504,7 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     band = stage["band"]
     mask = band[:, idx] & valid[None, :]
     shallow = stage["shallow"]
-    log_s11 = jnp.log(jnp.clip(shallow[:, idx], 1e-300, None))
+    log_s11 = jnp.log(jnp.clip(shallow[:, idx], tiny(shallow), None))
     lr = jnp.where(mask, stage["log_ratio"][:, idx], 0.0)
     lr_err = jnp.where(mask, stage["err_joint"][:, idx], 1.0)
     n_band = jnp.sum(band, axis=-1)
@@ -528,11 +529,11 @@ def _joint_fit(stage, d, g, vel, known, i0, pair, options, length, kernel, bande
     sel = band[main]
     k_obs = stage["omega"] / v0[main]
     log_k_obs = jnp.log(jnp.where(k_obs > 0, k_obs, 1.0))
-    phi_obs = (jnp.log(jnp.clip(shallow[main], 1e-300, None)) + jnp.log(v0[main]) - 2 * log_g(k_obs, d1, a0)
+    phi_obs = (jnp.log(jnp.clip(shallow[main], tiny(shallow), None)) + jnp.log(v0[main]) - 2 * log_g(k_obs, d1, a0)
                - jnp.log(jnp.sqrt(3 * jnp.pi) / a0))
     log_phi0 = _knot_start(log_k_obs, phi_obs, sel & (k_obs > 0), log_knots)
     m = shallow.shape[-1]
-    noise0 = jnp.log(jnp.median(shallow[:, m - m // 4:]) + 1e-300)
+    noise0 = jnp.log(jnp.median(shallow[:, m - m // 4:]) + tiny(shallow))
     theta0 = jnp.concatenate([log_v0, jnp.stack([jnp.log(a0), jnp.log(g[0]), jnp.log(g[1]), 0.0,
                                                  noise0 if options.noise_floor else -700.0]), log_phi0])
     n_par = theta0.shape[0]

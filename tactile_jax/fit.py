@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.special
 
+from ._numerics import tiny
 from . import cross_pair, jackknife
 from . import joint_model as jm
 from . import model_select
@@ -886,11 +887,11 @@ def joint_jackknife(theta, free, data: jm.ModelData, log_ratio_k, shallow_k, idx
     lowest quarter covered a 48 % of the time.
     """
     fields = {"log_h": jnp.where(data.mask_h, log_ratio_k[:, :, idx], 0.0),
-              "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], 1e-300, None)), 0.0)}
+              "log_s11": jnp.where(data.mask_s11, jnp.log(jnp.clip(shallow_k[:, :, idx], tiny(shallow_k), None)), 0.0)}
     if shift_k is not None:          # the window term's centroids change with the segment left out too
         fields["centroid_shift"] = jnp.asarray(shift_k)
     if c22_k is not None:
-        fields["log_c22"] = jnp.where(data.mask_c22, jnp.log(jnp.clip(c22_k[:, :, idx], 1e-300, None)), 0.0)
+        fields["log_c22"] = jnp.where(data.mask_c22, jnp.log(jnp.clip(c22_k[:, :, idx], tiny(c22_k), None)), 0.0)
     if chain_k is not None:
         ok = chain_k.ok[:, :, idx]
         fields.update(xy_beta1=chain_k.beta1[:, idx], xy_beta2=chain_k.beta2[:, idx],

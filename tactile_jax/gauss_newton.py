@@ -34,6 +34,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
+from ._numerics import tiny
 from .lsq import LsqResult, fit_statistics
 
 __all__ = ["N_ITERATIONS", "gauss_newton"]
@@ -60,7 +61,7 @@ def _damped_step(r, jac, free, lam):
     """The Marquardt step (J^T J + lam diag(J^T J)) delta = -J^T r, zero on fixed entries; and J^T r, J^T J."""
     g = jac.T @ r
     a = jac.T @ jac
-    diag = jnp.clip(jnp.diag(a), 1e-300, None)
+    diag = jnp.clip(jnp.diag(a), tiny(a), None)
     both = free[:, None] & free[None, :]
     eye = jnp.eye(a.shape[0], dtype=a.dtype)
     a_damped = jnp.where(both, a + lam * eye * diag[:, None], eye)
@@ -88,7 +89,7 @@ def _iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac=None, ma
         delta, g, _ = _damped_step(r, jac, free, lam)
         # no parameter moves by more than max_step per iteration (log space: a factor e): a nearly flat
         # direction (a speed or radius the data cannot bound) is not jumped onto a far plateau
-        delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), 1e-300))
+        delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), tiny(delta)))
         delta = jnp.where(start, 0.0, delta)
         trial = theta + delta
         r_t, j_t = _value_and_jac(residuals, trial, args, free, value_and_jac)
@@ -137,7 +138,7 @@ def gauss_newton(residuals: Callable, theta0, args, free, *, n_iter: int = N_ITE
     cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma = fit_statistics(
         theta, r, jac, free, bin_factor=bin_factor, scale_covar=scale_covar, n_prior=n_prior)
     # the undamped step still to go, in units of the error ellipsoid: g^T (J^T J)^-1 g / redchi
-    remaining = decrement / jnp.maximum(redchi, 1e-300)
+    remaining = decrement / jnp.maximum(redchi, tiny(redchi))
     small_step = (last_step <= xtol) | (jnp.sum(free) == 0)
     converged = (remaining <= gtol ** 2) & small_step & jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     return LsqResult(theta, cov, chi2, n_data, dof, redchi, n_acc, converged, cond, decrement, step_sigma=step_sigma)

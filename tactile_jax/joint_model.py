@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
+from ._numerics import tiny
 from ._quadrature import gauss_legendre
 from .cross_pair import regression
 from .r_curve import log_g
@@ -224,11 +225,9 @@ def log_phi_at(log_k, log_k_knots, log_phi):
 
 
 def _log_phi(kx, ky, log_k_knots, log_phi):
-    # k = 0 sits on the grid (omega = 0): the floor keeps the log and its gradient finite. At least the dtype's
-    # smallest normal number: 1e-300 underflows to 0 in float32 and made the chain's Jacobian NaN there
-    # (speed_vs_error's 10 dB recording fitted in float32: every error bar NaN, session 20)
-    floor = max(1e-300, float(jnp.finfo(jnp.result_type(kx, ky)).tiny))
-    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + floor)
+    # k = 0 sits on the grid (omega = 0): the floor keeps the log and its gradient finite (``tiny``: a 1e-300
+    # floor is 0 in float32 and made the chain's Jacobian NaN there, session 20)
+    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + tiny(kx, ky))
     return log_phi_at(log_k, log_k_knots, log_phi)
 
 
@@ -289,7 +288,7 @@ def _pair_nodes(p, omega, d1, d2):
     k_s = jnp.where(sensitive_is_u, u, solved)
     k_p = jnp.where(sensitive_is_u, solved, u)
     lg = log_g(k_s, jnp.stack([d1, d2])[:, None, None, None], a)             # (depth, 2, F, 2n)
-    log_w = -jnp.square(a * k_p) / 3.0 + jnp.log(jnp.clip(w, 1e-300, None)) - jnp.log(v_u)
+    log_w = -jnp.square(a * k_p) / 3.0 + jnp.log(jnp.clip(w, tiny(w), None)) - jnp.log(v_u)
     empty = (hi <= lo)[..., None]
     return u, solved, jnp.where(empty | (w <= 0), -2e4, log_w), lg         # finite: keeps gradients NaN-free
 
@@ -337,7 +336,7 @@ def _matrix_nodes(p, omega, d1, d2):
     solved = (omega[:, None] - u * v_o) / v_u
     kx = jnp.where(by_ky, solved, u)
     ky = jnp.where(by_ky, u, solved)
-    log_w = jnp.where(wt <= 0, -2e4, jnp.log(jnp.clip(wt, 1e-300, None)) - jnp.log(v_u))
+    log_w = jnp.where(wt <= 0, -2e4, jnp.log(jnp.clip(wt, tiny(wt), None)) - jnp.log(v_u))
     lx, ly = -jnp.square(a * kx) / 6.0, -jnp.square(a * ky) / 6.0
     # one log_g over the four channels: written four times, it was compiled four times (1.2 s against 0.5 s)
     k_s = jnp.stack([kx, kx, ky, ky])

@@ -22,6 +22,8 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 
+from ._numerics import tiny
+
 __all__ = ["LsqResult", "equilibrated_inverse", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL",
            "STEP_TOL"]
 
@@ -76,7 +78,7 @@ def equilibrated_inverse(jtj, free):
     The information on log v and on log-texture knots can differ by decades: inverting
     the unit-diagonal form keeps the covariance accurate.
     """
-    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), 1e-300, None)), 1.0)
+    d = jnp.where(free, jnp.sqrt(jnp.clip(jnp.diag(jtj), tiny(jtj), None)), 1.0)
     both = free[:, None] & free[None, :]
     scaled = jnp.where(both, jtj / (d[:, None] * d[None, :]), jnp.eye(jtj.shape[0], dtype=jtj.dtype))
     return d, scaled, jnp.linalg.pinv(scaled, hermitian=True)
@@ -99,14 +101,14 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
     redchi = chi2 / dof
     d, scaled, inv = equilibrated_inverse(jac_all.T @ jac_all, free)
     evals = jnp.linalg.eigvalsh(scaled)
-    cond = evals[-1] / jnp.clip(evals[0], 1e-300, None)
+    cond = evals[-1] / jnp.clip(evals[0], tiny(evals), None)
     cov = inv / (d[:, None] * d[None, :])
     factor = jnp.where(scale_covar, redchi, 1.0) * bin_factor
     cov = jnp.where(free[:, None] & free[None, :], cov * factor, 0.0)
     grad = jnp.where(free, (jac_all.T @ r_all) / d, 0.0)     # gradient of chi2 / 2, scaled variables
     step = -inv @ grad                                       # the Gauss-Newton step, scaled variables
     decrement = -grad @ step
-    step_sigma = jnp.where(free, step / jnp.sqrt(jnp.clip(jnp.diag(inv), 1e-300, None)), 0.0)
+    step_sigma = jnp.where(free, step / jnp.sqrt(jnp.clip(jnp.diag(inv), tiny(inv), None)), 0.0)
     return cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma
 
 
