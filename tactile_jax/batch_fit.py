@@ -49,7 +49,7 @@ from ._numerics import tiny
 from . import joint_model as jm
 from .closed_form import radius_from_offset, slope_speed
 from .fit import (MIN_PAIR_BAND_BINS, OWN_SCALE_PARAMS, FitOptions, conditioned_fields, dominant_line,
-                  joint_jackknife, leakage_only, physics_settled, resolution_segment)
+                  joint_jackknife, leakage_only, physics_settled, resolution_wants)
 from .gauss_newton import N_ITERATIONS, gauss_newton
 from .lsq import SOLVERS as LSQ_SOLVERS, STEP_TOL, least_squares
 from .prewhiten import filter_gain
@@ -166,36 +166,6 @@ def _main_band(band):
     jump = band & (prev >= 0) & (idx > 3 * prev + 4)
     return band & ~(jnp.cumsum(jump, axis=-1) > 0)
 
-
-
-def resolution_wants(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,
-                     min_band_bins: int = MIN_PAIR_BAND_BINS) -> np.ndarray:
-    """(B,) the Welch segment each record wants (``fit.resolution_segment``), 0 where it has nothing to go by.
-
-    A record wants the segment that resolves its faster pair's band (at most 0.15 of log ratio per
-    bin at its Eq. 6 speed, and at least ``min_band_bins`` usable bins given the ``n_band`` it has
-    at ``nperseg0``), and at least ``nperseg0`` (the default). A record with no Eq. 6 speed on
-    either pair but some usable bins (a slow slip at low SNR: a band 1-3 bins wide) wants its
-    widest band stretched to ``min_band_bins`` by its bin count alone, as ``fit._resolution_nperseg``.
-    speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m, n_band: (B, 2) or None.
-    """
-    v = np.where(line_ok, speed0, np.nan)
-    have = np.isfinite(v).any(axis=-1)
-    fast = np.argmax(np.where(np.isfinite(v), v, -np.inf), axis=-1)[:, None]
-    v_fast = np.take_along_axis(v, fast, axis=-1)[:, 0]
-    count = None
-    if n_band is not None and min_band_bins:
-        n_band = np.asarray(n_band)
-        count = np.where(have, np.take_along_axis(n_band, fast, axis=-1)[:, 0], n_band.max(axis=-1))
-        have |= count > 0                       # no slope: the bin count alone (speed inf)
-        v_fast = np.where(np.isfinite(v_fast), v_fast, np.inf)
-        count = count[have]
-    wants = np.zeros(v.shape[0], int)
-    if have.any():
-        wants[have] = np.maximum(resolution_segment(v_fast[have], np.asarray(fs)[have], np.asarray(depths)[have],
-                                                    n_samples, n_band=count, nperseg=nperseg0,
-                                                    min_band_bins=min_band_bins), nperseg0)
-    return wants
 
 
 def resolution_nperseg(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,

@@ -347,28 +347,20 @@ def _resolution_nperseg(spec, depths, n_samples: int, options: FitOptions, *, mi
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err,
                                   neighbours=options.band_neighbours))
-    speeds, counts = [], []
+    counts = band.sum(axis=-1)
+    speeds, ok = np.full(2, np.nan), np.zeros(2, bool)
     for p in range(2):
-        if band[p].sum() >= 3:
+        if counts[p] >= 3:
             f = slope_speed(ratio.omega, ratio.log_ratio[p], ratio.log_ratio_err[p], band[p], *depths)
-            if bool(f.ok):
-                speeds.append(float(f.speed))
-                counts.append(int(band[p].sum()))
-    if speeds:
-        fast = int(np.argmax(speeds))
-        speed, n_band = speeds[fast], counts[fast]
-    else:
-        # no pair has a slope to go by: a slow slip at low SNR, whose band is a few Hz and 1-3 bins wide
-        # (speed_vs_error's 10 dB, 1.5 cm/s recording: 3 + 1 bins at 512, 9 + 6 at 2048). Stretch the
-        # widest band to ``min_band_bins`` by its bin count alone; a band of no bins stays as it is
-        speed, n_band = np.inf, int(band.sum(axis=-1).max())
-        if n_band == 0 or not min_band_bins:
-            return None
+            ok[p] = bool(f.ok)
+            speeds[p] = float(f.speed)
     nperseg = 2 * (np.asarray(spec.omega).size - 1)
     fs = float(spec.omega[1] - spec.omega[0]) * nperseg / (2 * math.pi)
-    finer = int(resolution_segment(speed, fs, np.asarray(depths, float), n_samples, n_band=n_band,
-                                   nperseg=nperseg, min_band_bins=min_band_bins))
-    return finer if finer > nperseg else None
+    # no pair with a slope (a slow slip at low SNR, a band of a few Hz: speed_vs_error's 10 dB, 1.5 cm/s
+    # recording has 3 + 1 bins at 512, 9 + 6 at 2048): the widest band is stretched by its bin count alone
+    want = int(resolution_wants(speeds[None], ok[None], np.array([fs]), np.asarray(depths, float)[None], n_samples,
+                                nperseg, n_band=counts[None], min_band_bins=min_band_bins)[0])
+    return want if want > nperseg else None
 
 
 def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperseg=None,
@@ -396,6 +388,36 @@ def resolution_segment(speed, fs, depths, n_samples: int, *, n_band=None, nperse
         want = np.maximum(want, np.asarray(nperseg) * np.where(stretch > 1.0, stretch, 0.0))
     cap = 1 << ((2 * int(n_samples) // (_MIN_SEGMENTS + 1)).bit_length() - 1)
     return np.minimum(2.0 ** np.ceil(np.log2(np.maximum(want, 1.0))), cap)
+
+
+def resolution_wants(speed0, line_ok, fs, depths, n_samples: int, nperseg0: int, n_band=None,
+                     min_band_bins: int = MIN_PAIR_BAND_BINS) -> np.ndarray:
+    """(B,) the Welch segment each record wants (``resolution_segment``), 0 where it has nothing to go by.
+
+    A record wants the segment that resolves its faster pair's band (at most 0.15 of log ratio per
+    bin at its Eq. 6 speed, and at least ``min_band_bins`` usable bins given the ``n_band`` it has
+    at ``nperseg0``), and at least ``nperseg0`` (the default). A record with no Eq. 6 speed on
+    either pair but some usable bins (a slow slip at low SNR: a band 1-3 bins wide) wants its
+    widest band stretched to ``min_band_bins`` by its bin count alone (``_resolution_nperseg``, the batch).
+    speed0: (B, 2) m/s, line_ok: (B, 2) bool, fs: (B,) Hz, depths: (B, 2) m, n_band: (B, 2) or None.
+    """
+    v = np.where(line_ok, speed0, np.nan)
+    have = np.isfinite(v).any(axis=-1)
+    fast = np.argmax(np.where(np.isfinite(v), v, -np.inf), axis=-1)[:, None]
+    v_fast = np.take_along_axis(v, fast, axis=-1)[:, 0]
+    count = None
+    if n_band is not None and min_band_bins:
+        n_band = np.asarray(n_band)
+        count = np.where(have, np.take_along_axis(n_band, fast, axis=-1)[:, 0], n_band.max(axis=-1))
+        have |= count > 0                       # no slope: the bin count alone (speed inf)
+        v_fast = np.where(np.isfinite(v_fast), v_fast, np.inf)
+        count = count[have]
+    wants = np.zeros(v.shape[0], int)
+    if have.any():
+        wants[have] = np.maximum(resolution_segment(v_fast[have], np.asarray(fs)[have], np.asarray(depths)[have],
+                                                    n_samples, n_band=count, nperseg=nperseg0,
+                                                    min_band_bins=min_band_bins), nperseg0)
+    return wants
 
 
 def _options_from_file(options: FitOptions, rec) -> FitOptions:
