@@ -204,7 +204,7 @@ def joint_crb(theta, data: jm.ModelData, free, *, bin_factor=1.0, include_priors
 
 
 def whittle_crb(theta, data: jm.ModelData, free, *, cross: bool = True, include_priors: bool = False,
-                dof=None, n_s: int = 6001) -> Bound:
+                dof=None, bin_factor=1.0, n_s: int = 6001) -> Bound:
     """Cramer-Rao bound on |vx|, |vy| and a from the bins' full spectral matrix (the ideal estimator).
 
     theta, free: as ``joint_crb`` (the noise level, parameter 6, is taken as
@@ -214,8 +214,12 @@ def whittle_crb(theta, data: jm.ModelData, free, *, cross: bool = True, include_
     cross: the 4 x 4 matrix of both pairs; False keeps the pairs' 2 x 2 blocks
     (cross-pair entries zeroed), the information of per-pair statistics
     counted as if the pairs were independent. dof: averages per bin K
-    (default: from ``data.c22_weight`` = sqrt(K - 1)); bins count as
-    independent, as in ``joint_crb``. include_priors: as ``joint_crb``.
+    (default: from ``data.c22_weight`` = sqrt(K - 1)). bin_factor: correlation of
+    adjacent bins (``CrossSpectra.bin_factor``), as in ``joint_crb``; F is divided by
+    it. With the default 1 the bins count as independent, which for Welch's
+    half-overlapped Hann segments (K ~ 2 T / segment length, bin_factor 1.94)
+    credits each bin with about twice the T x bandwidth complex degrees of freedom
+    the record holds. include_priors: as ``joint_crb``.
     """
     if data.log_c22 is None or data.log_noise_c22 is None:
         raise ValueError("whittle_crb needs the conditioned-PSD fields of the fit's ModelData "
@@ -227,7 +231,7 @@ def whittle_crb(theta, data: jm.ModelData, free, *, cross: bool = True, include_
     free = jnp.asarray(free, bool).at[6].set(False)
     blocks = jnp.ones((4, 4)) if cross else jnp.asarray(_PAIR_BLOCKS)
     fisher = _whittle_fisher(theta, omega, data.depths, data.log_k_knots, jnp.ravel(data.log_noise_c22),
-                             free, k, blocks, n_s)
+                             free, k / float(bin_factor), blocks, n_s)
     if include_priors:
         prior = _joint_jacobian(theta, data)[-jm.n_prior_residuals(theta.shape[0]):] * free[None, :]
         fisher = fisher + prior.T @ prior

@@ -152,6 +152,9 @@ def test_the_cross_pair_spectra_hold_more_information(oblique_pairs):
     sd_full = np.append(np.asarray(full.speed_sd), float(full.a_sd))
     sd_pairs = np.append(np.asarray(pairs.speed_sd), float(pairs.a_sd))
     assert np.all(np.isfinite(sd_full)) and np.all(sd_full < 0.95 * sd_pairs), (sd_full, sd_pairs)
+    # correlated bins (Welch's Hann bin_factor) divide the data's information: sd x sqrt(bin_factor), priors aside
+    plain, shared = (whittle_crb(theta, data, free, bin_factor=b, n_s=3001) for b in (1.0, 1.94))
+    np.testing.assert_allclose(np.asarray(shared.speed_sd), np.sqrt(1.94) * np.asarray(plain.speed_sd), rtol=1e-3)
 
 
 def test_minor_component_gets_a_skewed_profile_interval():
