@@ -765,7 +765,7 @@ def conditioned_fields(c22, om, psd, omega, dof: float, mask, *, use: bool, nois
     """
     d_omega = omega[1] - omega[0]
     tail = jnp.where(omega >= 0.75 * omega[-1], psd, jnp.nan)
-    noise = jnp.log(jnp.nanmedian(tail, axis=-1) + 1e-300).reshape(2, 2)          # [[x1, x2], [y1, y2]]
+    noise = jnp.log(jnp.nanmedian(tail, axis=-1) + tiny(psd)).reshape(2, 2)          # [[x1, x2], [y1, y2]]
     if noise_floor:
         noise = noise.at[:, 0].set(-700.0)
     k1 = max(float(dof) - 1.0, 1.0)
@@ -1021,10 +1021,9 @@ def _rescue(res: FitResult, fit: LsqResult, data, free, n_prior, solver) -> tupl
     Session 20: on coverage scene 708 (exactly along y, vx consistent with 0) Dogleg did not converge
     either: the low-k texture knots crawl down as vx does. Its 256 steps moved vx, vy and a by at most
     0.05 sd (of LM's covariance) and the knots by up to 0.65 sd; 2048 more LM steps left the physics
-    unchanged to 1e-4. Where
-    Dogleg moves every free non-texture parameter by less than ``STEP_TOL`` of its sd, that measured
-    displacement settles the physics, as ``_settled_physics`` does from the linearised step: the stop
-    with the lower chi-square is kept, with a warning.
+    unchanged to 1e-4. Where Dogleg moves every free non-texture parameter by less than ``STEP_TOL`` of
+    its sd, that measured displacement settles the physics, as ``_settled_physics`` does from the
+    linearised step: the stop with the lower chi-square is kept, with a warning.
     """
     if solver != "optimistix" or bool(fit.converged) or not _physics_steps(fit, free)[0] >= STEP_TOL:
         return fit, False

@@ -392,7 +392,7 @@ def _window_average(s, data: ModelData, white=None):
     if data.kernel_index is not None:                            # banded: J grid points per bin
         idx, log_w = data.kernel_index, data.kernel_log_w
         return logsumexp(log_w[None] + (s + white_grid)[:, idx], axis=-1) - white_bin
-    log_kernel = jnp.log(jnp.clip(data.kernel, 1e-300, None))  # dense (L, F) kernel
+    log_kernel = jnp.log(jnp.clip(data.kernel, tiny(data.kernel), None))  # dense (L, F) kernel
     log_kernel = jnp.where(data.kernel > 0, log_kernel, -2e4)
     terms = log_kernel[None] + s[:, None, :] + white_grid[:, None, :]
     return logsumexp(terms, axis=-1) - white_bin
