@@ -3,10 +3,11 @@
 ``run_batch(inputs, out)`` fits every record of every recording under
 ``inputs`` (files, folders searched recursively, multi-record files with
 ``signals`` of shape (n, 4, N)) and writes one data-contract row per record
-to ``out`` (.json, .csv or .parquet). Records of the same length N are
-fitted in chunks of ``chunk_size`` by the compiled program of ``batch_fit``
-(the last chunk is padded with copies that are dropped), so a batch compiles
-once per (N, chunk size), not once per record.
+to ``out`` (.json, .csv or .parquet). Records are fitted in chunks of
+``chunk_size`` by the joint pipeline that ``fit`` runs on one record
+(``joint.core``, vmapped; the last chunk is padded with copies that are
+dropped). Its inputs have one shape whatever the record's length, segment
+length or band, so a batch compiles it once per chunk size, not per file.
 
 Nothing is lost: a bad record (NaN samples, wrong shape, missing fs/depths,
 an unreadable file) becomes a row with its ``status`` (the
@@ -42,8 +43,8 @@ __all__ = ["BatchSummary", "run_batch", "scan_inputs", "TRANSIENT_STATUSES", "DE
 TRANSIENT_STATUSES = ("worker_error",)
 #: statuses of a fit that ran and produced values (the others count as failed)
 FIT_RAN = ("ok", "not_converged", "poor_fit")
-#: the model a batch fits unless told otherwise (see benchmarks/README.md, "Throughput")
-DEFAULT_MODEL = "pair"
+#: the model a batch fits: the joint pipeline of ``fit`` (each row names the scene model it fitted)
+DEFAULT_MODEL = "joint"
 
 
 @dataclasses.dataclass
@@ -195,46 +196,30 @@ def _error_row(src: str, index: int, code: str, message: str, model: str) -> dic
 
 
 def _plan(infos: list[_FileInfo], done: set, chunk_size: int):
-    """Chunks of (file index, start, stop) segments, grouped by record length; the records to do."""
-    groups: dict[int, list[tuple[int, int]]] = {}
-    sizes: dict[int, int] = {}
+    """Chunks of (file index, start, stop) segments in file order; every chunk has one size (one program)."""
+    items = []
+    total = 0
     for fi, info in enumerate(infos):
         if info.error is not None:
             continue
-        sizes[info.n_samples] = sizes.get(info.n_samples, 0) + info.n_records
-        todo = [i for i in range(info.n_records) if (info.path, i) not in done]
-        groups.setdefault(info.n_samples, []).extend((fi, i) for i in todo)
+        total += info.n_records
+        items.extend((fi, i) for i in range(info.n_records) if (info.path, i) not in done)
+    # a tiny dataset gets a small program; the size depends on the dataset, not on what is left to do
+    size = min(chunk_size, 1 << max(total - 1, 0).bit_length())
     chunks = []
-    for n_samples in sorted(groups):
-        items = groups[n_samples]
-        # a tiny dataset gets a small program; the size depends on the dataset, not on what is left to do
-        size = min(chunk_size, 1 << max(sizes[n_samples] - 1, 0).bit_length())
-        for c in range(0, len(items), size):
-            part = items[c:c + size]
-            segments = []
-            for fi, i in part:
-                if segments and segments[-1][0] == fi and segments[-1][2] == i:
-                    segments[-1][2] = i + 1
-                else:
-                    segments.append([fi, i, i + 1])
-            chunks.append((size, [tuple(s) for s in segments]))
+    for c in range(0, len(items), size):
+        segments = []
+        for fi, i in items[c:c + size]:
+            if segments and segments[-1][0] == fi and segments[-1][2] == i:
+                segments[-1][2] = i + 1
+            else:
+                segments.append([fi, i, i + 1])
+        chunks.append((size, [tuple(s) for s in segments]))
     return chunks
 
 
-_PROGRAMS: dict = {}
-
-
-def _program(options: FitOptions, model: str, solver: str = "gauss_newton"):
-    from .batch_fit import FitProgram
-
-    key = (options, model, solver)
-    if key not in _PROGRAMS:
-        _PROGRAMS[key] = FitProgram(options=options, model=model, solver=solver)
-    return _PROGRAMS[key]
-
-
 def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOptions, model: str,
-               x64: bool = True, cache_dir: str | None = None, solver: str = "gauss_newton") -> tuple[list[dict], dict]:
+               x64: bool = True, cache_dir: str | None = None) -> tuple[list[dict], dict]:
     """Read, check and fit one chunk; return its rows (in segment order) and stage timings. Never raises."""
     import jax
 
@@ -242,15 +227,18 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         jax.config.update("jax_enable_x64", True)
     if cache_dir and not jax.config.jax_compilation_cache_dir:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-    from .batch_fit import ChunkMeta, chunk_rows
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    from .fit import result_from_summary, settings_of
+    from .joint import run
+    from .model_select import model_name
     from .recording import Recording, validate_recording
-    from .sensor import PAPER_SENSOR
 
     t0 = time.perf_counter()
     rows: dict[int, dict] = {}
-    good, sigs, metas = [], [], []
+    good, recs, metas = [], [], []
     pos = 0
+    settings = settings_of(options)
+    timings = {"read": 0.0, "spectra": 0.0, "fit": 0.0}
     for info, (_, start, stop) in zip(infos_part, segments):
         try:
             block = _read_records(info, start, stop)
@@ -260,50 +248,39 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                                            f"{info.path}: cannot read record {i}: {type(exc).__name__}: {exc}", model)
             pos += stop - start
             continue
-        finite = np.isfinite(block).all(axis=(1, 2)) if block.dtype.kind == "f" else np.ones(len(block), bool)
+        t1 = time.perf_counter()
+        timings["read"] += t1 - t0
         for k, i in enumerate(range(start, stop)):
-            if not finite[k]:
-                src = f"{info.path} [record {i}]" if info.multi else info.path
-                try:
-                    validate_recording(Recording(block[k], info.fs, info.depths, source=src))
-                    msg, code = f"{src}: non-finite samples", "nonfinite"
-                except TactileInputError as err:
-                    msg, code = str(err), err.code
-                rows[pos + k] = _error_row(info.path, i, code, msg, model)
+            src = f"{info.path} [record {i}]" if info.multi else info.path
+            vel = options.velocity if options.velocity is not None else info.velocity
+            try:
+                validate_recording(Recording(block[k], info.fs, info.depths, source=src))
+                recs.append(run.record(np.asarray(block[k], float), info.fs, info.depths, gains=_gains(info, options),
+                                       velocity=vel, method=options.method, nperseg=options.nperseg,
+                                       prewhiten=options.prewhiten, settings=settings, source=src))
+            except TactileInputError as err:
+                err = err.with_source(src)
+                rows[pos + k] = _error_row(info.path, i, err.code, str(err), model)
                 continue
             good.append((pos + k, info.path, i))
-            sigs.append(block[k])
-            gx, gy = _gains(info, options)
-            vel = options.velocity if options.velocity is not None else info.velocity
-            metas.append((info.fs, info.depths, (gx, gy), (0.0, 0.0) if vel is None else tuple(abs(v) for v in vel),
-                          vel is not None, info.curvature_radius or PAPER_SENSOR.curvature_radius))
+            metas.append((vel, info.curvature_radius))
         pos += stop - start
-    t_read = time.perf_counter() - t0
-    timings = {"read": t_read, "spectra": 0.0, "fit": 0.0}
+        t0 = time.perf_counter()
+        timings["spectra"] += t0 - t1
     if good:
-        n = len(good)
-        pad = [0] * (size - n)                          # copies of the first record, dropped after the fit
-        signals = np.stack(sigs + [sigs[i] for i in pad])
-        del sigs
-        allm = metas + [metas[i] for i in pad]
-        meta = ChunkMeta(fs=np.array([m[0] for m in allm], float), depths=np.array([m[1] for m in allm], float),
-                         gains=np.array([m[2] for m in allm], float), velocity=np.array([m[3] for m in allm], float),
-                         known=np.array([m[4] for m in allm], bool),
-                         curvature_radius=np.array([m[5] for m in allm], float))
-        program = _program(options, model, solver)
-        before = dict(program.timings)
+        t1 = time.perf_counter()
         try:
-            fit = program(signals, meta)
-            fit_rows = chunk_rows(fit, meta, [g[1] for g in good], [g[2] for g in good], model=model, options=options,
-                                  solver=solver if model == "pair" else None)
-            for (p, _, _), row in zip(good, fit_rows):
-                rows[p] = row
+            summaries = run.fit_many(recs, settings, size)
+            for (p, src, i), s, (vel, radius) in zip(good, summaries, metas):
+                res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
+                                          model=model_name(s.free, vel is not None))
+                res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
+                rows[p] = res.to_record()
         except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume
             text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
             for p, src, i in good:
                 rows[p] = _error_row(src, i, "worker_error", f"{src}: the chunk failed: {text}", model)
-        timings["spectra"] = program.timings["spectra"] - before["spectra"]
-        timings["fit"] = program.timings["fit"] - before["fit"]
+        timings["fit"] += time.perf_counter() - t1
     return [rows[k] for k in sorted(rows)], timings
 
 
@@ -358,45 +335,33 @@ class _Progress:
             sys.stderr.flush()
 
 
-def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 256, workers: int | None = None,
-              scheduler: str | None = None, progress: bool = True, resume: bool = True,
-              model: str | None = None, solver: str = "gauss_newton") -> BatchSummary:
+def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 32, workers: int | None = None,
+              scheduler: str | None = None, progress: bool = True, resume: bool = True) -> BatchSummary:
     """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
 
     inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
         folders (searched recursively; files that are not recordings are skipped with a note).
     out: results file, .json / .csv / .parquet (the format follows the suffix).
-    options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, solver); the
-        batch does not build the cross-pair chain (``cross_pairs``), which ``fit_recording`` uses by default.
+    options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, chain): the
+        same pipeline and model as ``fit_recording``, without its single-record extras (profile
+        bounds, model selection; ``options.model`` must be None).
     chunk_size: records per compiled call (memory grows with it, not with the batch).
     workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
     scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
     progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
         status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
-    model: ``"pair"`` (exact R per probe pair, fast) or ``"joint"`` (2-D joint model); default
-        ``DEFAULT_MODEL``.
-    solver: the pair fits' solver (``batch_fit.SOLVERS``): ``"gauss_newton"`` (fixed-iteration
-        Levenberg-Marquardt over the whole chunk, fast) or ``"optimistix"`` / ``"jaxopt"``
-        (``lsq.least_squares``, record by record on CPU; for comparison). The joint model's own
-        fits use ``options.solver``.
 
     Raises ``TactileInputError`` only for bad settings (``out`` suffix, chunk size, model); bad
     recordings become rows. ``n_failed`` counts rows whose status is not one of ``FIT_RAN``.
     """
-    from .batch_fit import MODELS, SOLVERS
     from .results import RESULT_SUFFIXES, write_results
 
     t_start = time.perf_counter()
     out = Path(os.fspath(out))
-    model = DEFAULT_MODEL if model is None else model
-    if model not in MODELS:
-        raise TactileInputError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}", code="bad_setting")
-    if solver not in SOLVERS:
-        raise TactileInputError(f"unknown solver {solver!r}; expected one of {', '.join(SOLVERS)}", code="bad_setting")
-    if options.cross_pairs:
-        raise TactileInputError(f"the batch does not build the cross-pair chain (cross_pairs={options.cross_pairs!r}); "
-                                "leave it unset (the batch fits the pairs as independent) or fit the records with "
-                                "fit_recording", code="bad_setting")
+    model = DEFAULT_MODEL
+    if options.model is not None:
+        raise TactileInputError(f"the batch fits the default model; model={options.model!r} is for fit_recording",
+                                code="bad_setting")
     if out.suffix.lower() not in RESULT_SUFFIXES:
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
@@ -446,10 +411,9 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     try:
         if workers is None and scheduler is None:
             for size, segs in chunks:
-                consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir,
-                                    solver))
+                consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
         else:
-            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir, solver)
+            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
     finally:
         bar.close()
     if not chunks:
@@ -469,7 +433,7 @@ def _hashable(options: FitOptions) -> FitOptions:
     return dataclasses.replace(options, gain_ratio=g, velocity=v)
 
 
-def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir, solver):
+def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -485,7 +449,7 @@ def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, c
             futures = {}
             for n, (size, segs) in enumerate(chunks):
                 part = [infos[fi] for fi, _, _ in segs]
-                fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, solver, pure=False,
+                fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, pure=False,
                                     key=f"tactile-chunk-{n}-{os.getpid()}-{time.time_ns()}")
                 futures[fut] = (part, segs)
             for fut in as_completed(futures):

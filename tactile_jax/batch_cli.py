@@ -13,21 +13,15 @@ from .cli import _floats, _user_errors
               help="Results file: .json, .csv or .parquet (needs pyarrow); rerunning with it resumes.")
 @click.option("--workers", type=int, default=None, help="Run on a local Dask cluster of N spawned processes.")
 @click.option("--scheduler", default=None, help="Address of a running Dask scheduler (tcp://host:8786).")
-@click.option("--chunk-size", type=int, default=256, show_default=True,
+@click.option("--chunk-size", type=int, default=32, show_default=True,
               help="Records per compiled call (memory grows with it, not with the batch).")
-@click.option("--model", type=click.Choice(["pair", "joint"]), default=None,
-              help="pair: exact R curve per probe pair (fast, default); joint: the 2-D joint model (slow, "
-                   "accurate under oblique slip with a small contact).")
-@click.option("--solver", type=click.Choice(["gauss_newton", "optimistix", "jaxopt"]), default="gauss_newton",
-              show_default=True, help="Solver of the pair fits: a fixed number of Levenberg-Marquardt iterations "
-                                      "over the whole chunk, or lsq.least_squares record by record (to compare).")
 @click.option("--velocity", default=None, help="Known slip vx,vy in m/s for every record: held fixed.")
 @click.option("--fit-gain", is_flag=True, help="Fit the deep/shallow gain ratios instead of holding them.")
-@click.option("--nperseg", type=int, default=None, help="Welch segment length (default: largest 2^k <= N/8, longer for slow slips per chunk).")
+@click.option("--nperseg", type=int, default=None, help="Welch segment length (default: largest 2^k <= N/8, longer for slow slips, per record).")
 @click.option("--no-resume", is_flag=True, help="Start afresh instead of skipping rows already in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line; the summary only.")
 @_user_errors
-def batch(inputs, out, workers, scheduler, chunk_size, model, solver, velocity, fit_gain, nperseg, no_resume, quiet):
+def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, no_resume, quiet):
     """Fit slip velocity and contact radius to every record under INPUTS (files or folders).
 
     One row per record (data-contract fields, the source file and the record index).
@@ -43,7 +37,7 @@ def batch(inputs, out, workers, scheduler, chunk_size, model, solver, velocity, 
     known = None if velocity is None else tuple(abs(v) for v in _floats(velocity, 2, "velocity"))
     options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg)
     summary = run_batch(list(inputs), out, options=options, chunk_size=chunk_size, workers=workers,
-                        scheduler=scheduler, progress=not quiet, model=model, solver=solver)
+                        scheduler=scheduler, progress=not quiet, resume=not no_resume)
     for note in summary.notes:
         click.echo(f"note: {note}", err=True)
     t = summary.timings

@@ -76,10 +76,30 @@ def chain_matrix(psd, csd, xy):
     return u + jnp.conj(jnp.swapaxes(jnp.triu(u, 1), -1, -2))    # u is zero below its diagonal
 
 
+def _solve_small(a, b):
+    """a^-1 b for (..., n, n) a and (..., n) b with small static n, by Gauss-Jordan elimination unrolled
+    (no pivoting: a is Hermitian positive definite here). Written out rather than ``jnp.linalg.solve``:
+    batched LAPACK calls inside the vmapped, looped fit of ``joint.core`` stalled XLA's CPU runtime
+    (8 records x 3 starts never finished), and unrolled elimination of a 2 x 2 or 3 x 3 is cheaper."""
+    n = a.shape[-1]
+    a = [[a[..., i, j] for j in range(n)] for i in range(n)]
+    b = [b[..., i] for i in range(n)]
+    for k in range(n):
+        inv = 1.0 / a[k][k]
+        a[k] = [v * inv for v in a[k]]
+        b[k] = b[k] * inv
+        for i in range(n):
+            if i != k:
+                f = a[i][k]
+                a[i] = [v - f * w for v, w in zip(a[i], a[k])]
+                b[i] = b[i] - f * b[k]
+    return jnp.stack(b, axis=-1)
+
+
 def regression(s_uu, s_ut, s_tt):
     """beta = S_uu^-1 S_u,t (..., n) and the residual PSD S_t.u = S_tt - S_u,t^H beta (...), real: the
-    chain's step for the measured matrices here and the model's (``joint_model.chain_model``)."""
-    beta = jnp.linalg.solve(s_uu, s_ut[..., None])[..., 0]
+    chain's step for the measured matrices here and the model's (``joint.model``)."""
+    beta = _solve_small(s_uu, s_ut)
     return beta, jnp.real(s_tt - jnp.sum(jnp.conj(s_ut) * beta, axis=-1))
 
 

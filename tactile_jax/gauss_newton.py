@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from ._numerics import tiny
 from .lsq import LsqResult, fit_statistics
 
-__all__ = ["N_ITERATIONS", "gauss_newton"]
+__all__ = ["N_ITERATIONS", "gauss_newton", "iterate"]
 
 #: iterations of the batch pair fits (chosen from measurements: see benchmarks/README.md, "Throughput")
 N_ITERATIONS = 20
@@ -69,7 +69,7 @@ def _damped_step(r, jac, free, lam):
     return jnp.where(free, delta, 0.0), g, a
 
 
-def _iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac=None, max_step=1.0):
+def iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac=None, max_step=1.0):
     """``n_iter`` damped Gauss-Newton steps: theta, residuals, Jacobian, last accepted step, accepted steps.
 
     Iteration 0 only evaluates the start (its step is zero and it is always taken), so that the
@@ -134,7 +134,7 @@ def gauss_newton(residuals: Callable, theta0, args, free, *, n_iter: int = N_ITE
     """
     theta0 = jnp.asarray(theta0)
     free = jnp.asarray(free, bool)
-    theta, r, jac, last_step, n_acc = _iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac, max_step)
+    theta, r, jac, last_step, n_acc = iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac, max_step)
     cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma = fit_statistics(
         theta, r, jac, free, bin_factor=bin_factor, scale_covar=scale_covar, n_prior=n_prior)
     # the undamped step still to go, in units of the error ellipsoid: g^T (J^T J)^-1 g / redchi

@@ -1,8 +1,8 @@
 """Nested scene models of the joint fit and an information criterion that picks one per recording.
 
 The models differ only in which entries of the joint model's parameter vector
-(``joint_model.PARAMS``) are free, so they share one compiled least-squares
-program (``lsq.least_squares`` takes the free mask as data):
+(``joint.model.PARAMS``) are free, so they share one compiled solve
+(``joint.run.refit`` takes the free mask as data):
 
     slip           slip velocity and texture; the window is negligible
                    (a -> infinity: a is held at ``A_NEGLIGIBLE`` and reported
@@ -33,14 +33,12 @@ The margin is the BIC of the runner-up minus the chosen one's.
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
-from . import joint_model as jm
 from .errors import TactileInputError
-from .lsq import LsqResult, least_squares
 
 __all__ = [
     "A_NEGLIGIBLE",
@@ -69,10 +67,10 @@ _DELTA_95 = 2.71
 
 
 class Candidate(NamedTuple):
-    """One fitted model: name, its least-squares result, free mask (P,) and criterion value."""
+    """One fitted model: name, its refit (None: the base fit), free mask (P,) and criterion value."""
 
     name: str
-    fit: LsqResult
+    fit: Any
     free: np.ndarray
     bic: float
 
@@ -81,7 +79,7 @@ class Selection(NamedTuple):
     """The chosen model: its fit and free mask, the margin (BIC units, None if forced) and the others."""
 
     name: str
-    fit: LsqResult
+    fit: Any
     free: np.ndarray
     margin: float | None
     candidates: tuple
@@ -123,13 +121,6 @@ def information_criterion(chi2, n_free, n_data, *, bin_factor=1.0, scale=1.0, ki
     return float(chi2) / (b * c) + penalty * int(n_free)
 
 
-def _refit(theta, free, data, n_prior, solver):
-    # rtol / atol are passed (at lsq's defaults) so that the call has the fit's signature and reuses its
-    # compiled program: left out, they made a second one (24 s cold on 2 cores, session 16)
-    return least_squares(jm.residuals, jnp.asarray(theta), data, jnp.asarray(free), solver=solver, max_steps=256,
-                         n_prior=n_prior, rtol=1e-8, atol=1e-8)
-
-
 def _slip_mask_theta(theta, free):
     th = np.asarray(theta).copy()
     fr = np.asarray(free).copy()
@@ -138,80 +129,69 @@ def _slip_mask_theta(theta, free):
     return th, fr
 
 
-def _finite(fit) -> bool:
-    return bool(np.all(np.isfinite(np.asarray(fit.theta)))) and bool(np.isfinite(float(fit.chi2)))
+def select(summary, free, refit, options, *, bin_factor: float = 1.0) -> Selection:
+    """Apply ``options.model`` ("slip" or "auto") to the base fit ``summary`` (``joint.core.Summary``).
 
-
-def select(fit: LsqResult, free, data, options, *, n_prior: int, bin_factor: float = 1.0,
-           noise0: float = -10.0) -> Selection:
-    """Apply ``options.model`` to the base fit (the window model with the options' flags).
-
-    Forced models: "slip" refits with a held at ``A_NEGLIGIBLE``; the others (and
-    None) are the base fit itself (``options_for`` set their flags). "auto": fits
-    slip, +gain and +noise around the base (each from its optimum) and keeps
-    the lowest ``information_criterion``. noise0: start of log noise (units^2/Hz).
+    refit(theta, free) -> (fit, chi2): the joint solve from ``theta`` over ``free`` (``fit.theta``
+    its parameters). "slip" refits with a held at ``A_NEGLIGIBLE``; "auto" fits slip, +gain and
+    +noise around the base (each from its optimum) and keeps the lowest ``information_criterion``.
     """
     free = np.asarray(free, bool)
     known = options.velocity is not None
-    name = options.model
-    if name != "auto":
-        if name == "slip":
-            th, fr = _slip_mask_theta(fit.theta, free)
-            fit, free = _refit(th, fr, data, n_prior, options.solver), fr
-        return Selection(model_name(free, known), fit, free, None, (), "")
-    fits = [(free, fit)]
-    th, fr = _slip_mask_theta(fit.theta, free)
-    fits.append((fr, _refit(th, fr, data, n_prior, options.solver)))
+    theta = np.asarray(summary.theta)
+    if options.model == "slip":
+        th, fr = _slip_mask_theta(theta, free)
+        fit, _ = refit(th, fr)
+        return Selection(model_name(fr, known), fit, fr, None, (), "")
+    n_data = float(summary.n_data)
+    fits = [(free, None, float(summary.chi2))]
+    th, fr = _slip_mask_theta(theta, free)
+    fits.append((fr, *refit(th, fr)))
     if not free[list(_I_GAINS)].all():
         fr = free.copy()
         fr[list(_I_GAINS)] = True
-        fits.append((fr, _refit(fit.theta, fr, data, n_prior, options.solver)))
+        fits.append((fr, *refit(theta, fr)))
     if not free[_I_NOISE]:
         fr = free.copy()
         fr[_I_NOISE] = True
-        th = np.asarray(fit.theta).copy()
-        th[_I_NOISE] = noise0
-        fits.append((fr, _refit(th, fr, data, n_prior, options.solver)))
-    fits = [(fr, f) for fr, f in fits if _finite(f)]
+        th = theta.copy()
+        th[_I_NOISE] = float(np.max(np.asarray(summary.data.log_noise)[:, 0]))
+        fits.append((fr, *refit(th, fr)))
+    fits = [(fr, f, c) for fr, f, c in fits if np.isfinite(c)]
     largest = max(fits, key=lambda t: int(t[0].sum()))
-    scale = float(largest[1].redchi)
+    scale = largest[2] / max(n_data - largest[0].sum(), 1.0)
     cands = sorted((Candidate(model_name(fr, known), f, fr,
-                              information_criterion(f.chi2, fr.sum(), f.n_data, bin_factor=bin_factor, scale=scale))
-                    for fr, f in fits), key=lambda c: c.bic)
+                              information_criterion(c, fr.sum(), n_data, bin_factor=bin_factor, scale=scale))
+                    for fr, f, c in fits), key=lambda c: c.bic)
     best = cands[0]
     margin = float(cands[1].bic - best.bic) if len(cands) > 1 else None
     note = (f"model {best.name} chosen by BIC (margin {margin:.1f} over {cands[1].name}; "
             + ", ".join(f"{c.name} {c.bic - best.bic:+.1f}" for c in cands[1:]) + ")") if margin is not None else ""
-    return Selection(best.name, best.fit, best.free, margin, tuple(cands), note)
+    chosen_free = free if best.fit is None else best.free
+    return Selection(best.name, best.fit, chosen_free, margin, tuple(cands), note)
 
 
-def window_needed(fit: LsqResult, free, data, *, n_prior: int, solver: str = "optimistix",
-                  scale: float | None = None) -> tuple[bool, str]:
+def window_needed(summary, free, refit_chi2) -> tuple[bool, str]:
     """Does the data reject the slip model (a -> infinity)? Tested when a is loosely measured.
 
-    A likelihood-ratio test: when holding a at ``A_NEGLIGIBLE`` (speeds, gains and
-    texture refitted) raises chi2 by less than 2.71 x ``scale``, the variance scale
-    of the fit's unit covariance (J^T J)^-1 (``fit._error_scale``; None:
-    max(redchi, 1)), the data cannot tell the window from none at
-    95 %, and a fitted radius would be a number fitted into noise (a 50 mm
-    contact came out as 4.3 +/- 1.5 mm). Returns (needed, note). The caller
-    keeps the window fit for the speeds (its errors include a's uncertainty;
-    the slip fit's speeds were biased by up to 9 sigma on 7 mm contacts in
-    ``benchmarks/coverage.py``) and reports a as a lower bound when not needed.
+    A likelihood-ratio test: when holding a at ``A_NEGLIGIBLE`` (speeds, gains and texture
+    refitted; ``refit_chi2(theta, free) -> chi2``) raises chi2 by less than 2.71 x a's variance
+    scale, the data cannot tell the window from none at 95 %, and a fitted radius would be a
+    number fitted into noise. Returns (needed, note). The caller keeps the window fit for the
+    speeds (its errors include a's uncertainty) and reports a as a lower bound when not needed.
     """
     free = np.asarray(free, bool)
     if not free[_I_A]:
         return True, ""
-    redchi = float(fit.redchi)
-    scale = max(redchi, 1.0) if scale is None else float(scale)
-    rel = float(np.sqrt(max(float(fit.cov[_I_A, _I_A]), 0.0) * scale / redchi)) if redchi > 0 else np.inf
-    if rel < WINDOW_TEST_REL_ERR:
+    sd = np.asarray(summary.sd)
+    if sd[_I_A] < WINDOW_TEST_REL_ERR:
         return True, ""
-    th, fr = _slip_mask_theta(fit.theta, free)
-    slip = _refit(th, fr, data, n_prior, solver)
-    if not _finite(slip):
+    scale = float(np.asarray(summary.scales)[_I_A])
+    th, fr = _slip_mask_theta(summary.theta, free)
+    chi2 = refit_chi2(th, fr)
+    if not np.isfinite(chi2):
         return True, ""
-    rise = float(slip.chi2) - float(fit.chi2)
+    rise = chi2 - float(summary.chi2)
     if rise >= _DELTA_95 * scale:
         return True, ""
     return False, (f"holding a at {1e3 * A_NEGLIGIBLE:.0f} mm changes chi2 by {rise:+.2f}, below the 95 % threshold "

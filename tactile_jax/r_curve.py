@@ -88,11 +88,23 @@ def log_g(alpha, depth, a):
     """log G(alpha; d, a) for the Gaussian window, normalised (G -> exp(-|alpha| d) as a -> inf).
 
     alpha: spatial frequency, rad/m. depth: probe depth d, m. a: contact radius, m.
+    With u = |alpha| a / sqrt(6), c = sqrt(3/2) d / a, z = c - u, z' = c + u:
+    z >= 0: log G = -u^2 + log((erfcx(z) + erfcx(z')) / 2);
+    z <  0: log G = c^2 - 2 c u + log1p(exp(-z^2) (erfcx(z') - erfcx(-z)) / 2)
+    (erfc(z) = 2 - exp(-z^2) erfcx(-z)): two erfcx evaluations serve both branches, and
+    c^2 - 2 c u = 3 d^2 / (2 a^2) - |alpha| d keeps the two large terms from cancelling.
     """
-    z, _, log_a = _g_parts(alpha, depth, a)
-    # -(alpha a)^2 / 6 + q, with q = z^2 for z < 0 written as c (c - 2u) = 3 d^2 / (2 a^2) - |alpha| d
-    # so that the two large terms never cancel numerically
-    return jnp.where(z < 0, log_r_rough(alpha, 0.0, depth, a), -jnp.square(alpha * a) / 6.0) + log_a
+    alpha = jnp.abs(alpha)
+    u = alpha * a / _SQRT_6
+    c = _SQRT_3_2 * depth / a
+    z = c - u
+    t = _erfcx(jnp.abs(z))
+    tp = _erfcx(c + u)
+    neg = z < 0
+    pos_branch = -jnp.square(u) + jnp.log(0.5 * (jnp.where(neg, 1.0, t) + tp))
+    e = jnp.exp(-jnp.square(jnp.where(neg, z, 0.0)))
+    neg_branch = log_r_rough(alpha, 0.0, depth, a) + jnp.log1p(0.5 * e * (tp - t))
+    return jnp.where(neg, neg_branch, pos_branch)
 
 
 def log_r_exact(alpha, d1, d2, a):

@@ -1,0 +1,191 @@
+"""Running the joint pipeline: records from signals or spectra, the compiled programs, one or many at a time.
+
+Every program here is compiled once per process (and kept in the persistent
+cache where the caller enables one), whatever the recordings' lengths, segment
+lengths or band widths: their inputs have fixed shapes (``segments``). The
+single-record path and a batch call the same ``core``: ``fit`` jit-compiles it
+for one record, ``batch`` for a chunk (``jax.vmap``); ``solve`` and ``finish``
+serve what ``fit`` layers on top (profiles, model selection, more iterations).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import TactileInputError
+from . import band as band_mod
+from .core import ITERATIONS as ITERATIONS, Record, Settings, Summary, core, finish, solve
+from .residuals import n_prior
+from .segments import KERNEL_OFFSETS, N_BINS, N_GROUPS, AR_ORDER, Segments, segments
+
+__all__ = ["record", "record_from_spectra", "fit_one", "fit_many", "refit", "summarise", "chi2_of", "resolution_want"]
+
+#: the log ratio may fall by at most this much across one bin (resolution of slow slips)
+MAX_LOG_STEP_PER_BIN = 0.15
+#: fewest half-overlapping segments a longer segment may leave
+MIN_SEGMENTS = 6
+#: the fit's Welch segment is lengthened until the faster pair's band holds this many usable bins
+MIN_BAND_BINS = 8
+
+
+def _locate(rec: Record, settings: Settings):
+    spec = band_mod.spectra(rec.seg)
+    b = band_mod.select(spec, rec.depths, jnp.log(rec.gains), min_snr=settings.min_snr, max_err=settings.max_err,
+                        fmin=settings.fmin, fmax=settings.fmax, leakage_db=settings.leakage_db)
+    return b.speed0, b.n_band
+
+
+@functools.cache
+def _programs():
+    """The compiled programs, built on first use (one set per process)."""
+    return {"locate": jax.jit(_locate), "locate_many": jax.jit(jax.vmap(_locate, in_axes=(0, None))),
+            "core": jax.jit(core), "core_many": jax.jit(jax.vmap(core, in_axes=(0, None))),
+            "solve": jax.jit(solve), "finish": jax.jit(finish)}
+
+
+def _as_jnp(tree):
+    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+
+    def conv(x):
+        x = np.asarray(x)
+        if x.dtype.kind == "f":
+            return jnp.asarray(x, dtype)
+        if x.dtype.kind == "c":
+            return jnp.asarray(x, jnp.complex128 if dtype == jnp.float64 else jnp.complex64)
+        return jnp.asarray(x)
+
+    return jax.tree.map(conv, tree)
+
+
+def _record(seg: Segments, depths, gains, velocity) -> Record:
+    known = velocity is not None
+    vel = np.zeros(2) if velocity is None else np.abs(np.asarray(velocity, float))
+    return Record(seg, np.asarray(depths, float), np.asarray(gains, float), vel, np.asarray(known))
+
+
+def resolution_want(speed0, n_band, fs, depths, n_samples: int, nperseg: int) -> int:
+    """The Welch segment (samples) that resolves a record's band, or ``nperseg`` when that one does.
+
+    Two rules, the longer wins, rounded up to a power of two and capped so that at least
+    ``MIN_SEGMENTS`` half-overlapping segments remain: the ratio falls as exp(-(d2 - d1) omega / v),
+    so nperseg >= 2 pi fs (d2 - d1) / (0.15 v) keeps its fall below 0.15 per bin at the faster pair's
+    Eq. 6 speed v; and a band of n usable bins is stretched to at least ``MIN_BAND_BINS``. A record
+    with no Eq. 6 speed but some usable bins (a slow slip at low SNR) goes by its bin count alone.
+    """
+    speed0 = np.asarray(speed0, float)
+    n_band = np.asarray(n_band)
+    have = np.isfinite(speed0)
+    want = 0.0
+    if have.any():
+        fast = int(np.argmax(np.where(have, speed0, -np.inf)))
+        eps = float(depths[1] - depths[0])
+        want = 2 * math.pi * fs * eps / (MAX_LOG_STEP_PER_BIN * speed0[fast])
+        count = n_band[fast]
+    else:
+        count = n_band.max()
+    if count > 0 and count < MIN_BAND_BINS:
+        want = max(want, nperseg * MIN_BAND_BINS / count)
+    if want <= nperseg:
+        return nperseg
+    cap = 1 << ((2 * int(n_samples) // (MIN_SEGMENTS + 1)).bit_length() - 1)
+    return int(min(2 ** math.ceil(math.log2(want)), max(cap, nperseg)))
+
+
+def record(signals, fs: float, depths, *, gains=(1.0, 1.0), velocity=None, method: str = "welch",
+           nperseg: int | None = None, prewhiten: int | None = 8, settings: Settings = Settings(),
+           source: str | None = None) -> Record:
+    """A ``Record`` of one recording (4, N): its segments, lengthened for slow slips unless ``nperseg`` is given."""
+    seg = segments(signals, fs, method=method, nperseg=nperseg, prewhiten=prewhiten, source=source)
+    if method == "welch" and not nperseg:
+        rec = _record(seg, depths, gains, velocity)
+        speed0, n_band = _programs()["locate"](_as_jnp(rec), settings)
+        n0 = int(seg.nperseg)
+        want = resolution_want(np.asarray(speed0), np.asarray(n_band), fs, np.asarray(depths, float),
+                               np.shape(signals)[-1] - (prewhiten or 0), n0)
+        if want > n0:
+            seg = segments(signals, fs, method=method, nperseg=want, prewhiten=prewhiten, source=source)
+    return _record(seg, depths, gains, velocity)
+
+
+def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, kernel=None, bin_factor=None,
+                        whitening=None, fs=None, gains=(1.0, 1.0), velocity=None, source=None) -> Record:
+    """A ``Record`` of given spectra: omega (M,) rad/s uniformly spaced from a multiple of the spacing,
+    psd (4, M), csd (2, M) complex; one group (no jackknife), no x-y spectra (no chain).
+    kernel: (offsets in bins, weights) of the estimator's spectral window (None: one bin)."""
+    omega = np.asarray(omega, float)
+    d = np.diff(omega)
+    if omega.size < 8 or not np.allclose(d, d[0], rtol=1e-6) or d[0] <= 0:
+        raise TactileInputError("fitting PSD/CSD needs at least 8 uniformly spaced omega bins", source=source,
+                                code="bad_shape")
+    d_omega = float(d[0])
+    first = omega[0] / d_omega
+    if abs(first - round(first)) > 1e-6:
+        raise TactileInputError("omega must lie on a grid k * d_omega (a bin at omega = k * spacing)", source=source,
+                                code="bad_shape")
+    first = int(round(first))
+    m = min(omega.size, N_BINS - first)
+    if m < 8:
+        raise TactileInputError(f"the spectra start at bin {first}, beyond the fit's grid of {N_BINS} bins",
+                                source=source, code="bad_shape")
+    auto = np.zeros((N_GROUPS, 4, N_BINS))
+    cs = np.zeros((N_GROUPS, 2, N_BINS), complex)
+    count = np.zeros(N_GROUPS)
+    auto[0, :, first:first + m] = np.asarray(psd, float)[:, :m]
+    cs[0, :, first:first + m] = np.asarray(csd, complex)[:, :m]
+    count[0] = 1.0
+    if kernel is None:
+        kernel = ((0.0,), (1.0,))
+    offsets, weights = (np.asarray(k, float) for k in kernel)
+    kern = np.zeros(KERNEL_OFFSETS.size)
+    pos = np.clip(np.rint((offsets - KERNEL_OFFSETS[0]) * 2).astype(int), 0, KERNEL_OFFSETS.size - 1)
+    np.add.at(kern, pos, weights)
+    coeffs = np.zeros((2, AR_ORDER + 1))
+    coeffs[:, 0] = 1.0
+    if whitening is not None:
+        w = np.asarray(whitening, float)
+        coeffs[:, :w.shape[-1]] = w
+    fs = float(fs) if fs else d_omega * N_BINS / math.pi          # only the whitening filter uses it
+    seg = Segments(auto, cs, np.zeros((N_GROUPS, 4, N_BINS), complex), count, np.asarray(d_omega),
+                   np.asarray(first + m), np.asarray(float(n_segments)), np.asarray(1.0),
+                   np.asarray(float(bin_factor) if bin_factor else 1.0), kern / kern.sum(), coeffs,
+                   np.asarray(fs), np.asarray(0))
+    return _record(seg, depths, gains, velocity)
+
+
+def fit_one(rec: Record, settings: Settings) -> Summary:
+    """``core`` on one record (numpy in, a ``Summary`` of jax arrays out)."""
+    return _programs()["core"](_as_jnp(rec), settings)
+
+
+def fit_many(recs: list[Record], settings: Settings, size: int | None = None) -> list[Summary]:
+    """``core`` vmapped over records (padded to ``size`` with copies of the first); one ``Summary`` each (numpy)."""
+    n = len(recs)
+    size = max(size or n, n)
+    stacked = jax.tree.map(lambda *x: np.stack(x), *(recs + [recs[0]] * (size - n)))
+    out = _programs()["core_many"](_as_jnp(stacked), settings)
+    out = jax.tree.map(np.asarray, out)
+    return [jax.tree.map(lambda x, i=i: x[i], out) for i in range(n)]
+
+
+def chi2_of(r, n_params: int) -> float:
+    """chi-square of the data residuals (the priors left out)."""
+    r = np.asarray(r)
+    return float(np.sum(np.square(r[:r.size - n_prior(n_params)])))
+
+
+def refit(theta, free, data, n_iter: int = ITERATIONS[2]):
+    """``solve`` from ``theta`` over ``free`` for ``n_iter`` iterations (one program for every count: the
+    one ``fit`` layers its extras on): theta, r, jac."""
+    return _programs()["solve"](jnp.asarray(theta), jnp.asarray(free), data, jnp.asarray(n_iter), jnp.asarray(free),
+                                jnp.asarray(0))
+
+
+def summarise(rec: Record, summary: Summary, free, theta, r, jac) -> Summary:
+    """``finish`` at a refitted solution (over ``free``) of the data of ``summary``."""
+    return _programs()["finish"](_as_jnp(rec), summary.data, jnp.asarray(free), summary.located, jnp.asarray(theta),
+                                 r, jac)

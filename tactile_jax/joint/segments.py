@@ -1,0 +1,180 @@
+"""Probe signals to grouped periodogram products on a fixed grid: the pipeline's only variable-shape step.
+
+Every later stage of the joint pipeline (``band``, ``core``) is compiled for
+ONE shape, whatever the recording's length, segment length or estimator: the
+spectra arrive here as (G, ..., M) sums of periodogram products over G groups
+of consecutive segments (or tapers), on the first M bins of the estimate,
+with zero groups and zero bins as padding. The full spectra are the sum over
+the groups; the jackknife leaves one group out. With at most G segments each
+group is one segment (the delete-one-segment jackknife); with more, a
+delete-one-group jackknife over G groups of adjacent segments.
+
+numpy, no compilation: Burg prewhitening, Welch segments or DPSS tapers, FFT.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import TactileInputError
+from ..spectra import (_bin_factor, _bin_rho, _cached_window, _dpss_tapers, _spectral_kernel, _welch_dof,
+                       default_nperseg)
+
+__all__ = ["N_GROUPS", "N_BINS", "KERNEL_OFFSETS", "AR_ORDER", "Segments", "segments", "burg_ar"]
+
+#: groups of segments (the jackknife's leave-one-out units)
+N_GROUPS = 32
+#: bins of the fixed grid (DC first); an estimate with more bins is cut above, with fewer padded
+N_BINS = 512
+#: offsets (bins) of the spectral-window kernel's fixed support
+KERNEL_OFFSETS = np.arange(-6.0, 6.25, 0.5)
+#: order of the AR prewhitening filters' fixed slot (a lower order is zero-padded)
+AR_ORDER = 8
+
+
+class Segments(NamedTuple):
+    """One record's grouped periodogram products (arrays; a leading batch axis under ``vmap``).
+
+    auto: (G, 4, M) summed |X_c|^2 of (x1, x2, y1, y2), PSD units (units^2/Hz) times segments.
+    csd: (G, 2, M) complex summed conj(X1) X2 of the x and y pairs. xy: (G, 4, M) complex summed
+    conj(X_i) Y_j in the order (x1 y1, x1 y2, x2 y1, x2 y2). All divided by the prewhitening
+    filters' response at the bin (|A|^2; conj(A_x) A_y for xy): spectra of the signals themselves.
+    count: (G,) segments in each group (0: padding). d_omega: bin width, rad/s. n_valid: bins of
+    the estimate on the grid. dof: effective number of independent segments (Welch 1967).
+    overlap: segments / dof. bin_factor: variance inflation of a sum over adjacent bins.
+    kernel: (J,) the spectral window's weights at ``KERNEL_OFFSETS`` (sum 1). whitening: (2, p + 1)
+    AR error filters of the pairs ([1, 0, ...]: none). fs: Hz. nperseg: samples per segment
+    (the record length for multitaper).
+    """
+
+    auto: np.ndarray
+    csd: np.ndarray
+    xy: np.ndarray
+    count: np.ndarray
+    d_omega: np.ndarray
+    n_valid: np.ndarray
+    dof: np.ndarray
+    overlap: np.ndarray
+    bin_factor: np.ndarray
+    kernel: np.ndarray
+    whitening: np.ndarray
+    fs: np.ndarray
+    nperseg: np.ndarray
+
+
+def burg_ar(x: np.ndarray, order: int) -> np.ndarray:
+    """Burg estimate of the AR error filter [1, a1, ..., ap] of ``x`` (N,); a silent channel gives [1, 0, ...]."""
+    x = np.asarray(x, float) - np.mean(x)
+    ef, eb = x.copy(), x.copy()
+    a = np.ones(1)
+    for _ in range(order):
+        f, b = ef[1:], eb[:-1]
+        den = f @ f + b @ b
+        k = -2.0 * (f @ b) / den if den > 0 else 0.0
+        ef, eb = f + k * b, b + k * f
+        a = np.concatenate([a, [0.0]])
+        a = a + k * a[::-1]
+    return a
+
+
+def _response(coeffs, omega, fs):
+    """A(exp(i omega / fs)) of filters (..., p + 1) at omega (M,): (..., M) complex."""
+    k = np.arange(coeffs.shape[-1])
+    return coeffs @ np.exp(-1j * np.outer(k, omega / fs))
+
+
+@functools.lru_cache(maxsize=32)
+def _estimator(method: str, nperseg: int, n_samples: int, nw: float, n_tapers: int):
+    """Tapers (T, n), step, number of segments, dof, bin factor and the kernel on ``KERNEL_OFFSETS``."""
+    if method == "welch":
+        w = _cached_window("hann", nperseg)
+        step = nperseg - nperseg // 2
+        n_seg = (n_samples - nperseg) // step + 1
+        tapers, dof = w[None, :], _welch_dof(w, step, n_seg)
+        nfft = nperseg
+    else:
+        tapers = _dpss_tapers(n_samples, nw, n_tapers)
+        step, n_seg, dof, nfft = 0, n_tapers, float(n_tapers), n_samples
+    offsets, weights = _spectral_kernel(tapers, nfft, 6.0)
+    kernel = np.interp(KERNEL_OFFSETS, offsets, weights)
+    return tapers, step, n_seg, float(dof), _bin_factor(_bin_rho(tapers, nfft)), kernel / kernel.sum()
+
+
+def segments(signals, fs: float, *, method: str = "welch", nperseg: int | None = None, prewhiten: int | None = 8,
+             nw: float = 4.0, n_tapers: int | None = None, source: str | None = None) -> Segments:
+    """``Segments`` of one record ``signals`` (4, N) sampled at ``fs`` Hz.
+
+    method: "welch" (Hann, half overlap, each segment's mean removed; ``nperseg`` samples,
+    default ``spectra.default_nperseg(N)``) or "multitaper" (DPSS, ``nw``, ``n_tapers``).
+    prewhiten: order of the Burg AR filter of each pair's shallow probe applied to both of its
+    probes before averaging and divided out after (None or 0: off; at most ``AR_ORDER``).
+    Raises ``TactileInputError`` for settings the record cannot meet.
+    """
+    x = np.asarray(signals, float)
+    n = x.shape[-1]
+    p = int(prewhiten or 0)
+    if method not in ("welch", "multitaper"):
+        raise TactileInputError(f"unknown spectral method {method!r}; expected 'welch' or 'multitaper'",
+                                source=source, code="bad_setting")
+    if not 0 <= p <= AR_ORDER:
+        raise TactileInputError(f"prewhiten must be 0..{AR_ORDER}, got {prewhiten!r}", source=source,
+                                code="bad_setting")
+    if n < max(32, 4 * p):
+        raise TactileInputError(f"recording has N={n} samples, too short to estimate spectra", source=source,
+                                code="too_short")
+    coeffs = np.zeros((2, AR_ORDER + 1))
+    coeffs[:, 0] = 1.0
+    if p:
+        coeffs[0, :p + 1] = burg_ar(x[0], p)
+        coeffs[1, :p + 1] = burg_ar(x[2], p)
+        filt = np.repeat(coeffs[:, :p + 1], 2, axis=0)                    # x1, x2 share the x filter
+        x = sum(filt[:, k, None] * x[:, p - k:n - k] for k in range(p + 1))
+    if method == "welch":
+        nperseg = int(nperseg or default_nperseg(n))
+        if nperseg < 16 or nperseg > x.shape[-1]:
+            raise TactileInputError(f"nperseg={nperseg} does not fit a recording of {x.shape[-1]} samples",
+                                    source=source, code="bad_setting")
+        tapers, step, n_seg, dof, bin_factor, kernel = _estimator("welch", nperseg, x.shape[-1], 0.0, 0)
+        idx = np.arange(n_seg)[:, None] * step + np.arange(nperseg)[None, :]
+        seg = x[:, idx]                                                    # (4, K, n)
+        seg = seg - seg.mean(axis=-1, keepdims=True)
+        spec = np.fft.rfft(seg * tapers[0], axis=-1)
+        scale = 1.0 / (fs * np.sum(tapers[0] ** 2))
+        nfft = nperseg
+    else:
+        n_tapers = int(n_tapers or max(1, int(math.floor(2.0 * nw)) - 3))
+        x = x - x.mean(axis=-1, keepdims=True)
+        tapers, _, n_seg, dof, bin_factor, kernel = _estimator("multitaper", 0, x.shape[-1], float(nw), n_tapers)
+        spec = np.fft.rfft(x[:, None, :] * tapers[None], axis=-1)
+        scale = 1.0 / fs
+        nfft = x.shape[-1]
+        nperseg = nfft
+    m = nfft // 2 + 1
+    onesided = np.full(m, 2.0)
+    onesided[0] = 1.0
+    if nfft % 2 == 0:
+        onesided[-1] = 1.0
+    spec = spec * np.sqrt(scale * onesided)                               # (4, K, m)
+    omega = 2.0 * np.pi * fs * np.arange(m) / nfft
+    resp = _response(coeffs, omega, fs)                                    # (2, m)
+    gain = np.abs(resp) ** 2
+    auto = np.abs(spec) ** 2 / np.repeat(gain, 2, axis=0)[:, None, :]
+    csd = np.conj(spec[0::2]) * spec[1::2] / gain[:, None, :]
+    xy = (np.conj(spec[0:2, None]) * spec[None, 2:4]).reshape(4, n_seg, m) / (np.conj(resp[0]) * resp[1])
+    # consecutive segments into at most N_GROUPS groups
+    group = np.minimum(np.arange(n_seg) * N_GROUPS // n_seg, N_GROUPS - 1)
+    m_out = min(m, N_BINS)
+
+    def grouped(v):
+        out = np.zeros((N_GROUPS,) + v.shape[:1] + (N_BINS,), v.dtype)
+        np.add.at(out, (group, slice(None), slice(0, m_out)), np.moveaxis(v[..., :m_out], 1, 0))
+        return out
+
+    count = np.bincount(group, minlength=N_GROUPS).astype(float)
+    return Segments(grouped(auto), grouped(csd), grouped(xy), count, np.asarray(omega[1]), np.asarray(m_out),
+                    np.asarray(dof), np.asarray(n_seg / dof if method == "welch" else 1.0), np.asarray(bin_factor),
+                    np.asarray(kernel), coeffs, np.asarray(float(fs)), np.asarray(nperseg))
