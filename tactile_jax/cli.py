@@ -22,7 +22,7 @@ jax.config.update("jax_enable_x64", True)
 _CACHE = os.environ.get("TACTILE_JAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "tactile_jax", "jax"))
 if _CACHE:
     jax.config.update("jax_compilation_cache_dir", _CACHE)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def _user_errors(fn):

@@ -417,8 +417,8 @@ def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_rad
         if options.cross_pairs not in (None, 0, 1, 2):
             return FitResult(status="unsupported", message=f"cross_pairs must be None, 0, 1 or 2, not "
                                                            f"{options.cross_pairs!r}")
-        s = _numpy(run.fit_one(rec, settings_of(options, has_xy=has_xy)))
-        return _layered(rec, s, options, curvature_radius)
+        settings = settings_of(options, has_xy=has_xy)
+        return _layered(_Refitter(rec, settings), run.fit_one(rec, settings), options, curvature_radius)
     except TactileInputError:
         raise
     except Exception as err:  # a bug or a numerical corner must not sink a batch: report it as data
@@ -426,34 +426,27 @@ def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_rad
                          message=f"the fit failed: {type(err).__name__}: {' '.join(str(err).split())}")
 
 
-def _numpy(s: Summary) -> Summary:
-    return jax.tree.map(np.asarray, s)
-
-
 # --------------------------------------------------------------------------- one record's extras
 
 
-class _Refit(NamedTuple):
-    theta: np.ndarray
-    chi2: float
-    r: Any
-    jac: Any
+class _Refitter(NamedTuple):
+    """Refits of one record through the pipeline's program (``joint.run.refit``)."""
+
+    rec: Record
+    settings: Settings
+
+    def __call__(self, theta, free) -> Summary:
+        return run.refit(self.rec, self.settings, theta, free)
 
 
-def _refit(theta, free, data, n_iter: int = 18) -> _Refit:
-    theta, r, jac = run.refit(np.asarray(theta), np.asarray(free, bool), data, n_iter)
-    theta = np.asarray(theta)
-    return _Refit(theta, run.chi2_of(r, theta.size), r, jac)
-
-
-def _layered(rec: Record, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
+def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
     warnings = []
     if int(s.status) == STATUS.index("not_converged"):
-        s, more = _continue(rec, s)
+        s, more = _continue(refit, s)
         warnings.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
                         if int(s.status) != STATUS.index("not_converged") else
                         f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
-    chosen, window_weak, note = _select(rec, s, options)
+    chosen, window_weak, note = _select(refit, s, options)
     margin = None
     if chosen is not None:
         _, s, margin = chosen
@@ -461,7 +454,7 @@ def _layered(rec: Record, s: Summary, options: FitOptions, curvature_radius) -> 
     res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
                               window_weak=window_weak, solver=options.solver)
     res.model_margin = margin
-    _profiles(res, s, options)
+    _profiles(res, s, options, refit)
     if note and note.startswith("model "):
         res.message = "; ".join(m for m in (note, res.message) if m)
     elif note:
@@ -478,31 +471,24 @@ def _layered(rec: Record, s: Summary, options: FitOptions, curvature_radius) -> 
     return res
 
 
-def _continue(rec: Record, s: Summary):
+def _continue(refit: _Refitter, s: Summary):
     """More solves from where a fit stopped unsettled; the last summary and how many solves ran."""
     for k in range(1, _MORE_SOLVES + 1):
-        fit = _refit(s.theta, s.free, s.data)
-        s = _numpy(run.summarise(rec, s, s.free, fit.theta, fit.r, fit.jac))
+        s = refit(s.theta, s.free)
         if int(s.status) != STATUS.index("not_converged"):
             return s, k
     return s, _MORE_SOLVES
 
 
-def _select(rec: Record, s: Summary, options: FitOptions):
+def _select(refit: _Refitter, s: Summary, options: FitOptions):
     """``options.model``: ((name, summary, margin) or None, window_weak, note)."""
     free = np.asarray(s.free, bool)
     if options.model in ("slip", "auto"):
-        def refit(theta, fr):
-            fit = _refit(theta, fr, s.data)
-            return fit, fit.chi2
-        sel = model_select.select(s, free, refit, options, bin_factor=float(rec.seg.bin_factor))
-        if sel.fit is None:
-            return (sel.name, s, sel.margin), False, sel.note
-        fit = sel.fit
-        return (sel.name, _numpy(run.summarise(rec, s, sel.free, fit.theta, fit.r, fit.jac)), sel.margin), False, \
-            sel.note
+        sel = model_select.select(s, free, lambda th, fr: (lambda f: (f, float(f.chi2)))(refit(th, fr)), options,
+                                  bin_factor=float(refit.rec.seg.bin_factor))
+        return (sel.name, s if sel.fit is None else sel.fit, sel.margin), False, sel.note
     if options.model is None:
-        needed, note = model_select.window_needed(s, free, lambda th, fr: _refit(th, fr, s.data).chi2)
+        needed, note = model_select.window_needed(s, free, lambda th, fr: float(refit(th, fr).chi2))
         return None, not needed, note
     return None, False, ""
 
@@ -590,7 +576,7 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     return res
 
 
-def _profiles(res: FitResult, s: Summary, options: FitOptions) -> None:
+def _profiles(res: FitResult, s: Summary, options: FitOptions, refit: _Refitter) -> None:
     """Profile-likelihood bounds and intervals where the Laplace error does not describe a parameter."""
     if res.status in ("no_band", "failed"):
         return
@@ -603,7 +589,7 @@ def _profiles(res: FitResult, s: Summary, options: FitOptions) -> None:
         v, err = getattr(res, name), getattr(res, name + "_err")
         if not free[i] or err is None or not (err > 0.5 * v or v < 1e-3 * max(vx, vy)):
             continue
-        upper = _profile_bound(s, free, i, direction=+1, scale=scale[i])
+        upper = _profile_bound(refit, s, free, i, direction=+1, scale=scale[i])
         upper = None if (upper is not None and upper > _V_BOUNDS[1]) else upper
         setattr(res, name + "_upper", upper)
         notes.append((f"{name} is consistent with 0", f"{name} is consistent with 0 at 2 sigma (95 % upper bound "
@@ -613,7 +599,7 @@ def _profiles(res: FitResult, s: Summary, options: FitOptions) -> None:
     name = ("vx", "vy")[minor]
     if (options.profile_minor and free[0] and free[1] and getattr(res, name + "_upper") is None
             and min(vx, vy) < MINOR_PROFILE * max(vx, vy)):
-        (lo, hi), (lo2, hi2) = _profile_interval(s, free, minor, sd[minor], scale=scale[minor])
+        (lo, hi), (lo2, hi2) = _profile_interval(refit, s, free, minor, sd[minor], scale=scale[minor])
         for suffix, value in (("_lo", lo), ("_hi", hi), ("_lo2", lo2), ("_hi2", hi2)):
             setattr(res, name + suffix, value)
         res.message = "; ".join(m for m in (res.message, f"{name} is a minor component (the spectra depend on it "
@@ -623,7 +609,7 @@ def _profiles(res: FitResult, s: Summary, options: FitOptions) -> None:
             setattr(res, name + "_upper", hi2)
             res.message += f"; {name} is consistent with 0 at 2 sigma (95 % upper bound {_fmt_speed(hi2)})"
     if free[2] and res.a is None:
-        lower = _profile_bound(s, free, 2, direction=-1, scale=scale[2])
+        lower = _profile_bound(refit, s, free, 2, direction=-1, scale=scale[2])
         res.a_lower = lower
         notes.append(("the contact window is too weak to measure a",
                       f"the contact window is too weak to measure a: a > {1e3 * lower:.3g} mm (95 % lower bound)"
@@ -632,7 +618,8 @@ def _profiles(res: FitResult, s: Summary, options: FitOptions) -> None:
         res.message = res.message.replace(old, new, 1)
 
 
-def _profile_walk(s: Summary, free, i, direction, step, c_stop, *, limit=None, n_max=24, growth=1.5):
+def _profile_walk(refit: _Refitter, s: Summary, free, i, direction, step, c_stop, *, limit=None, n_max=24,
+                  growth=1.5):
     """Step log-parameter i from the best fit (direction -1: down, +1: up), the others refitted
     (warm-started), until chi2 rises by ``c_stop`` or x passes ``limit``; the step grows by
     ``growth`` each time. Returns the finite points (x, chi2 - chi2_min), starting with (x_best, 0)."""
@@ -648,20 +635,21 @@ def _profile_walk(s: Summary, free, i, direction, step, c_stop, *, limit=None, n
         x = x + direction * step
         step *= growth
         theta[i] = x
-        fit = _refit(theta, others, s.data, 8)
-        if not np.isfinite(fit.chi2):
+        fit = refit(theta, others)
+        chi2 = float(fit.chi2)
+        if not np.isfinite(chi2):
             continue
-        points.append((x, fit.chi2 - chi0))
-        theta = fit.theta.copy()
-        if fit.chi2 - chi0 >= c_stop:
+        points.append((x, chi2 - chi0))
+        theta = np.asarray(fit.theta).copy()
+        if chi2 - chi0 >= c_stop:
             break
     return points, x
 
 
-def _profile_bound(s: Summary, free, i, *, direction, scale, delta=2.71, n_max=24):
+def _profile_bound(refit: _Refitter, s: Summary, free, i, *, direction, scale, delta=2.71, n_max=24):
     """One-sided 95 % profile-likelihood bound of parameter i (log space), exp of the crossing of
     chi2_min + delta * scale (interpolated), or the last value tried below / None above."""
-    points, x_last = _profile_walk(s, free, i, direction, 0.1, delta * scale, n_max=n_max)
+    points, x_last = _profile_walk(refit, s, free, i, direction, 0.1, delta * scale, n_max=n_max)
     if len(points) > 1 and points[-1][1] >= delta * scale:
         (x0, c0), (x1, c1) = points[-2], points[-1]
         frac = (delta * scale - c0) / max(c1 - c0, 1e-12)
@@ -669,7 +657,7 @@ def _profile_bound(s: Summary, free, i, *, direction, scale, delta=2.71, n_max=2
     return float(np.exp(x_last)) if direction < 0 else None
 
 
-def _profile_interval(s: Summary, free, i, sd_log, *, scale, n_sigma=(1.0, 2.0)):
+def _profile_interval(refit: _Refitter, s: Summary, free, i, sd_log, *, scale, n_sigma=(1.0, 2.0)):
     """Profile-likelihood intervals of speed i (m/s), one (lo, hi) per ``n_sigma``; the crossing of
     chi2_min + n^2 scale is interpolated linearly in sqrt(chi2 - chi2_min) (exact for a quadratic
     profile). A side that never reaches it gives 0 (below) or None (above)."""
@@ -677,7 +665,7 @@ def _profile_interval(s: Summary, free, i, sd_log, *, scale, n_sigma=(1.0, 2.0))
     limits = {-1: v_major + np.log(1e-3), +1: v_major + np.log(2.0)}
     c_stop = max(n_sigma) ** 2 * scale
     step = 0.5 * max(float(sd_log), 0.02)
-    sides = {d: _profile_walk(s, free, i, d, step, c_stop, limit=limits[d], n_max=16)[0] for d in (-1, +1)}
+    sides = {d: _profile_walk(refit, s, free, i, d, step, c_stop, limit=limits[d], n_max=16)[0] for d in (-1, +1)}
     out = []
     for n in n_sigma:
         target = n * np.sqrt(scale)

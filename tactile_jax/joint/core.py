@@ -6,20 +6,21 @@
 1. spectra, the usable band and the closed-form starts on the fixed grid (``band.select``);
 2. the fit's window of ``N_FIT`` bins from the first usable one, and on it the measured
    blocks, their masks and weights (``data``);
-3. starting values: the pairs' Eq. 6 speeds and Eq. 26 radius, and two more speed starts
-   that take each axis in turn as the major one (a pair that hears only window leakage
-   mimics a fast slip along it); the texture knots from the shallow spectrum;
-4. each start: the texture alone with the physics held, then every parameter, by
-   fixed-iteration Levenberg-Marquardt (``gauss_newton.iterate``, no data-dependent control
-   flow, so records and starts vmap side by side); the lowest chi-square goes on;
+3. starting values: each pair fitted alone with the exact R curve (from its Eq. 6 speed and
+   Eq. 26 radius), and two more speed starts that take each axis in turn as the major one (a
+   pair that hears only window leakage mimics a fast slip along it); the texture knots from
+   the shallow spectrum;
+4. each start: the texture alone with the physics held, then every parameter; the lowest
+   cost goes on (``solve.levenberg_marquardt``: one loop of fixed iterations, no
+   data-dependent control flow, so records vmap side by side);
 5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
    through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
    other parameters the three pooled, none below the reduced chi-square;
 6. an integer status (``STATUS``) and the reported values.
 
 What only a single record needs (profile-likelihood bounds, more iterations for a fit
-that has not settled, model selection, emcee) is layered on top by ``fit`` with
-``solve``, the same solver on the same ``JointData``.
+that has not settled, model selection) is layered on top by ``fit`` through this same
+program, started from a given point (``Start``).
 """
 
 from __future__ import annotations
@@ -39,19 +40,19 @@ from jax.scipy.special import logsumexp
 from . import band as band_mod
 from .data import N_FIT, JointData, grid_offsets, measure
 from .model import N_PHYS, ModelSpectra, spectra_at_bins
-from .residuals import blocks, n_prior, residuals
+from .residuals import blocks, n_prior, residuals_and_model
 from .solve import levenberg_marquardt
 from .segments import KERNEL_OFFSETS, Segments
 from .spline import log_phi_at
 
-__all__ = ["STATUS", "Settings", "Record", "Summary", "Located", "Prepared", "core", "prepare", "explore", "solve",
+__all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "prepare",
            "finish", "N_KNOTS", "ITERATIONS"]
 
 #: integer status codes of ``Summary.status``
 STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
 N_KNOTS = 12
-#: fixed iterations: from every start on the texture alone and in all, then from the best in all
-ITERATIONS = (3, 6, 18)
+#: fixed iterations: from every start on the texture alone, from every start in all, then from the best
+ITERATIONS = (3, 7, 18)
 POOR_FIT_REDCHI = 4.0
 #: a stop counts as converged when a full Gauss-Newton step would lower chi2 by less than this...
 DECREMENT_TOL = 1e-2
@@ -291,14 +292,6 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     return Prepared(data, jax.vmap(lambda lv: theta0.at[:2].set(lv))(starts), free, stage1, b)
 
 
-def solve(theta0, free, data: JointData, n_iter: int, first=None, n_first: int = 0):
-    """``n_iter`` Levenberg-Marquardt iterations on the joint residuals from ``theta0`` over ``free`` (the first
-    ``n_first`` over ``first``); (theta, residuals, Jacobian) at the end."""
-    first = free if first is None else first
-    theta, r, jac, _ = levenberg_marquardt(residuals, theta0, data, free, first, n_iter, n_first)
-    return theta, r, jac
-
-
 def statistics(theta, r, jac, free):
     """``lsq.fit_statistics`` of the joint residuals: cov (unit x redchi), chi2, n_data, dof, redchi, cond,
     decrement, step_sigma."""
@@ -356,24 +349,36 @@ def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi):
     return scales, jnp.maximum(pooled, redchi), ran
 
 
-def core(record: Record, settings: Settings) -> Summary:
-    """The joint fit of one record (see the module). Pure jnp, fixed shapes: jit and vmap freely."""
+class Start(NamedTuple):
+    """Where ``core`` starts its final solve: with ``use``, from ``theta`` (P,) over ``free`` (P,) instead of
+    the best of its own starts (a refit: a profile point, another model, more iterations)."""
+
+    theta: jax.Array
+    free: jax.Array
+    use: jax.Array
+
+
+def no_start(n_params: int = N_PHYS + N_KNOTS) -> Start:
+    """The ``Start`` that lets ``core`` choose its own."""
+    return Start(np.zeros(n_params), np.zeros(n_params, bool), np.asarray(False))
+
+
+def core(record: Record, settings: Settings, start: Start | None = None) -> Summary:
+    """The joint fit of one record (see the module). Pure jnp, fixed shapes: jit and vmap freely.
+
+    start: a ``Start`` to refit from (``fit``'s extras run through this same program), or None.
+    """
     prep = prepare(record, settings)
     b = prep.band
-    return finish(record, prep.data, prep.free, Located(b.i0, b.n_leak, b.k0, b.speed0),
-                  *solve(explore(prep), prep.free, prep.data, ITERATIONS[2]))
-
-
-def explore(prep: Prepared):
-    """Every start side by side for ``ITERATIONS[1]`` iterations (the first ``ITERATIONS[0]`` on the texture
-    alone): the parameters (P,) of the one that ends lowest."""
-    def run(theta0):
-        theta, r, _ = solve(theta0, prep.free, prep.data, ITERATIONS[1], prep.first, ITERATIONS[0])
-        chi2 = jnp.sum(jnp.square(r))
-        return theta, jnp.where(jnp.isfinite(chi2) & jnp.all(jnp.isfinite(theta)), chi2, jnp.inf)
-
-    thetas, chi2 = jax.vmap(run)(prep.starts)
-    return thetas[jnp.argmin(chi2)]
+    starts, free, skip = prep.starts, prep.free, False
+    if start is not None:
+        starts = jnp.where(start.use, jnp.broadcast_to(start.theta.astype(starts.dtype), starts.shape), starts)
+        free = jnp.where(start.use, start.free, free)
+        skip = start.use
+    n_first, n_start, n_final = ITERATIONS
+    theta, r, jac, model = levenberg_marquardt(residuals_and_model, starts, prep.data, free, prep.first,
+                                               n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip)
+    return finish(record, prep.data, free, Located(b.i0, b.n_leak, b.k0, b.speed0), theta, r, jac, model)
 
 
 class Located(NamedTuple):
@@ -404,9 +409,9 @@ def texture_sections(theta, cov, jac, model: ModelSpectra, data: JointData):
     return jnp.stack([k, logp, jnp.sqrt(jnp.clip(var, 0.0, None) + 1.0 / jnp.square(data.s11_weight))])
 
 
-def finish(record: Record, data: JointData, free, b: Located, theta, r, jac) -> Summary:
-    """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals and
-    Jacobian."""
+def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra) -> Summary:
+    """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals, their
+    Jacobian and the model's spectra there."""
     cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     settled = settled_physics(step_sigma, free)
@@ -419,7 +424,6 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac) -> 
     cov = cov * jnp.sqrt(jnp.outer(scales, scales)) / jnp.where(redchi > 0, redchi, 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0, None))
     n_bins = jnp.sum(data.mask_s11[0]) + jnp.sum(data.mask_s11[1] | data.mask_xy[0])
-    model = spectra_at_bins(theta, data)
     status = jnp.where(n_bins < MIN_BINS, 1, jnp.where(~finite, 4, jnp.where(~converged, 2,
                        jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
     return Summary(theta, cov, sd, free, scales, pooled, chi2, redchi, n_data, cond, decrement, step_sigma,

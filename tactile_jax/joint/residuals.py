@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from .data import JointData, Measured
 from .model import N_PHYS, ModelSpectra, spectra_at_bins
 
-__all__ = ["blocks", "residuals", "n_prior"]
+__all__ = ["blocks", "residuals", "residuals_and_model", "n_prior"]
 
 
 def _masked(mask, meas, model, weight):
@@ -47,6 +47,12 @@ def priors(theta, data: JointData):
     return jnp.concatenate([prior, smooth])
 
 
+def residuals_and_model(theta, data: JointData):
+    """All weighted residuals (``blocks`` then the ``n_prior`` priors) and the model's spectra."""
+    model = spectra_at_bins(theta, data)
+    return jnp.concatenate([blocks(model, data.meas, data), priors(theta, data)]), model
+
+
 def residuals(theta, data: JointData):
     """All weighted residuals: ``blocks`` then the priors (``n_prior`` of them)."""
-    return jnp.concatenate([blocks(spectra_at_bins(theta, data), data.meas, data), priors(theta, data)])
+    return residuals_and_model(theta, data)[0]

@@ -4,8 +4,9 @@ Every program here is compiled once per process (and kept in the persistent
 cache where the caller enables one), whatever the recordings' lengths, segment
 lengths or band widths: their inputs have fixed shapes (``segments``). The
 single-record path and a batch call the same ``core``: ``fit`` jit-compiles it
-for one record, ``batch`` for a chunk (``jax.vmap``); ``solve`` and ``finish``
-serve what ``fit`` layers on top (profiles, model selection, more iterations).
+for one record, ``batch`` for a chunk (``jax.vmap``); what ``fit`` layers on
+top (profiles, model selection, more iterations) runs through the same program
+from a given start (``refit``).
 """
 
 from __future__ import annotations
@@ -19,11 +20,12 @@ import numpy as np
 
 from ..errors import TactileInputError
 from . import band as band_mod
-from .core import ITERATIONS as ITERATIONS, Record, Settings, Summary, core, finish, solve
-from .residuals import n_prior
+from .core import ITERATIONS as ITERATIONS, Located, Record, Settings, Start, Summary, core, no_start
+from .data import JointData, Measured
+from .model import ModelSpectra
 from .segments import KERNEL_OFFSETS, N_BINS, N_GROUPS, AR_ORDER, Segments, segments
 
-__all__ = ["record", "record_from_spectra", "fit_one", "fit_many", "refit", "summarise", "chi2_of", "resolution_want"]
+__all__ = ["record", "record_from_spectra", "fit_one", "fit_many", "refit", "resolution_want"]
 
 #: the log ratio may fall by at most this much across one bin (resolution of slow slips)
 MAX_LOG_STEP_PER_BIN = 0.15
@@ -40,12 +42,71 @@ def _locate(rec: Record, settings: Settings):
     return b.speed0, b.n_band
 
 
+def _core_many(recs: Record, settings: Settings) -> Summary:
+    return jax.vmap(core, in_axes=(0, None))(recs, settings)
+
+
 @functools.cache
 def _programs():
     """The compiled programs, built on first use (one set per process)."""
-    return {"locate": jax.jit(_locate), "locate_many": jax.jit(jax.vmap(_locate, in_axes=(0, None))),
-            "core": jax.jit(core), "core_many": jax.jit(jax.vmap(core, in_axes=(0, None))),
-            "solve": jax.jit(solve), "finish": jax.jit(finish)}
+    return {"locate": jax.jit(_locate), "core": _single_core(), "core_many": jax.jit(_core_many)}
+
+
+# the pytree types of the single-record program's arguments and results, for jax.export's serialisation
+_TYPES = (Segments, Record, Settings, Start, Summary, Located, ModelSpectra, JointData, Measured)
+
+
+def _source_key() -> str:
+    """A hash of the sources the compiled pipeline is traced from, JAX's version and the precision."""
+    import hashlib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha1(f"{jax.__version__} {jax.config.jax_enable_x64}".encode())
+    for path in sorted(list((root / "joint").glob("*.py")) + [root / n for n in (
+            "r_curve.py", "cross_pair.py", "gauss_newton.py", "lsq.py", "closed_form.py", "_numerics.py",
+            "_quadrature.py")]):
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _single_core():
+    """``core`` for one record, jit-compiled. Where a persistent compilation cache is set (the CLI sets one),
+    its traced program is also kept there with ``jax.export``: a later process deserialises it instead of
+    tracing ``core`` again (5 s on a 2-core CPU) and finds its compiled form in the cache."""
+    from pathlib import Path
+
+    jitted = jax.jit(core)
+    cache = jax.config.jax_compilation_cache_dir
+    if not cache:
+        return jitted
+    try:
+        from jax import export
+
+        for t in _TYPES:
+            try:
+                export.register_namedtuple_serialization(t, serialized_name=f"tactile_jax.{t.__name__}")
+            except ValueError:          # registered already
+                pass
+        path = Path(cache).parent / "export" / f"core-{_source_key()}.bin"
+        state = {}
+
+        def call(rec, settings, start):
+            if "exp" not in state:
+                if path.exists():
+                    state["exp"] = export.deserialize(bytearray(path.read_bytes()))
+                else:
+                    state["exp"] = export.export(jitted)(rec, settings, start)
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    tmp = path.with_suffix(".tmp")
+                    tmp.write_bytes(state["exp"].serialize())
+                    tmp.replace(path)
+                state["call"] = jax.jit(state["exp"].call)
+            return state["call"](rec, settings, start)
+
+        return call
+    except ImportError:                 # jax.export's serialisation needs flatbuffers
+        return jitted
 
 
 def _as_jnp(tree):
@@ -157,9 +218,11 @@ def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, kernel=No
     return _record(seg, depths, gains, velocity)
 
 
-def fit_one(rec: Record, settings: Settings) -> Summary:
-    """``core`` on one record (numpy in, a ``Summary`` of jax arrays out)."""
-    return _programs()["core"](_as_jnp(rec), settings)
+def fit_one(rec: Record, settings: Settings, start: Start | None = None) -> Summary:
+    """``core`` on one record (numpy in, a ``Summary`` of numpy arrays out); ``start``: refit from there."""
+    start = no_start() if start is None else start
+    out = _programs()["core"](_as_jnp(rec), settings, _as_jnp(start))
+    return jax.tree.map(np.asarray, out)
 
 
 def fit_many(recs: list[Record], settings: Settings, size: int | None = None) -> list[Summary]:
@@ -172,20 +235,6 @@ def fit_many(recs: list[Record], settings: Settings, size: int | None = None) ->
     return [jax.tree.map(lambda x, i=i: x[i], out) for i in range(n)]
 
 
-def chi2_of(r, n_params: int) -> float:
-    """chi-square of the data residuals (the priors left out)."""
-    r = np.asarray(r)
-    return float(np.sum(np.square(r[:r.size - n_prior(n_params)])))
-
-
-def refit(theta, free, data, n_iter: int = ITERATIONS[2]):
-    """``solve`` from ``theta`` over ``free`` for ``n_iter`` iterations (one program for every count: the
-    one ``fit`` layers its extras on): theta, r, jac."""
-    return _programs()["solve"](jnp.asarray(theta), jnp.asarray(free), data, jnp.asarray(n_iter), jnp.asarray(free),
-                                jnp.asarray(0))
-
-
-def summarise(rec: Record, summary: Summary, free, theta, r, jac) -> Summary:
-    """``finish`` at a refitted solution (over ``free``) of the data of ``summary``."""
-    return _programs()["finish"](_as_jnp(rec), summary.data, jnp.asarray(free), summary.located, jnp.asarray(theta),
-                                 r, jac)
+def refit(rec: Record, settings: Settings, theta, free) -> Summary:
+    """The same program from ``theta`` over ``free`` (what ``fit`` layers its extras on)."""
+    return fit_one(rec, settings, Start(np.asarray(theta, float), np.asarray(free, bool), np.asarray(True)))
