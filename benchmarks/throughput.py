@@ -1,337 +1,415 @@
-"""Batch throughput (issue 7): recordings/s of the compiled chunk program vs a scipy loop and a numpy floor.
+"""Batch throughput: recordings/s of ``batch.run_batch`` end to end, with errors and coverage, vs a scipy loop.
 
-Recordings of 4 x 8192 samples at 1 kHz are drawn from a seeded pool of
-simulated scenes (``--pool`` scenes, simulated once with ``scene.simulate``
-without noise and cached in ``--out``; |v| log-uniform in 2-8 cm/s along x or
-y, contact radius uniform in 1.5-5 mm, random texture), each draw adding fresh
-white measurement noise at 50 dB SNR (the scene's own noise definition). So
-recordings share textures: the error statistics are over noise, and over the
-pool's scenes, not over 10,000 textures.
+Two seeded scene sets, each a pool of ``--pool`` scenes simulated once without
+noise (``scene.simulate``, random texture, Gaussian window) and cached in
+``--out``; record j is pool scene j % P plus fresh white measurement noise
+seeded by j (the scene's noise definition: sigma = sqrt(P_ref) 10^(-SNR/20),
+P_ref the larger mean power of x1 and y1). So records share textures: the
+statistics are over noise and over the pool's scenes, not over as many textures.
 
-For every batch size (its own process, so that the peak RSS is that size's):
+- ``x`` (the old script's set): |v| log-uniform in 2-8 cm/s along x or y
+  (alternating), a uniform in 1.5-5 mm, 4 x 8192 samples at 1 kHz, SNR 50 dB, float64;
+- ``oblique``: |v| log-uniform in 1-8 cm/s, direction uniform in 0-90 deg, a
+  uniform in 0.8-3 mm, 16 s at 1 kHz, SNR uniform in 30-60 dB per record, float32.
 
-- batch: ``batch_fit.FitProgram`` (what ``tactile-jax batch`` runs), chunks of
-  ``--chunk`` records generated on the fly; a warm-up chunk is timed apart as
-  the compile time; spectral and fitting stages are timed separately;
-- scipy: ``scipy_reference.fit_record`` per recording (scipy.signal +
-  curve_fit of the same exact-R pair model) on the first ``--scipy-max``
-  recordings (its rate does not depend on the batch size);
-- floor: vectorised numpy/scipy Welch auto- and cross-spectra only.
+For every set and size, in its own process (so that its first pass compiles and
+its peak RSS is its own): the records are written to multi-record NPZ files
+(not timed), then ``run_batch(files, out.json, chunk_size=--chunk)`` runs twice:
+the first pass pays the compilations (rate "with compile"), the second is the
+steady state (rate "warm"); both are end to end (scan, read, spectra, fit,
+rows, write). Reported over the rows with status ``ok``: median |vx - |vx_true||
+and |vy - |vy_true|| in % of |v|, and the share with |est - truth| <= err
+(1 sigma) and <= 2 err (2 sigma) for vx, vy and a (a where the fit gave one).
+Reference: ``scipy_reference.fit_record`` (scipy.signal + curve_fit per pair,
+Welch segment ``spectra.default_nperseg(N)``) on the first ``--scipy-max`` of the
+same records, timed per record (drawing excluded); its rate is given as a ratio.
 
-Errors: relative deviation of the speed along the slip axis from |v|, and of
-a from the truth (bias and RMSE in %), on records both methods fitted.
-
-    python benchmarks/throughput.py --out benchmarks/out                 # 100, 1000, 10000
-    python benchmarks/throughput.py --sizes 100 --pool 8 --scipy-max 50  # quick
+    python benchmarks/throughput.py --out benchmarks/out                      # 100 records per set
+    python benchmarks/throughput.py --sizes 16 --pool 4 --set oblique --out /tmp/tp   # quick
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import os
 import platform
 import resource
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-N_SAMPLES, FS, SNR_DB = 8192, 1000.0, 50.0
+FS = 1000.0
+SETS = {
+    "x": {"n_samples": 8192, "snr_db": (50.0, 50.0), "dtype": "float64",
+          "label": "slip along x or y, |v| 2-8 cm/s, a 1.5-5 mm, 50 dB, 8.2 s, float64"},
+    "oblique": {"n_samples": 16000, "snr_db": (30.0, 60.0), "dtype": "float32",
+                "label": "oblique 0-90 deg, |v| 1-8 cm/s, a 0.8-3 mm, 30-60 dB, 16 s, float32"},
+}
+#: records per NPZ file written for the batch (bounds the memory of the inputs)
+FILE_RECORDS = 500
 
 
-def _pool(path: Path, n: int):
+# --------------------------------------------------------------------------- pool and records
+
+
+def _scene_params(name: str, k: int, rng):
+    """(vx, vy, a, seed) of pool scene k of set ``name``."""
+    import numpy as np
+
+    if name == "x":                                     # as the old throughput script (rng seed 7)
+        speed = float(np.exp(rng.uniform(np.log(0.02), np.log(0.08))))
+        a = float(rng.uniform(1.5e-3, 5e-3))
+        vel = (speed, 0.0) if k % 2 == 0 else (0.0, speed)
+        return vel[0], vel[1], a, 100 + k
+    speed = float(np.exp(rng.uniform(np.log(0.01), np.log(0.08))))
+    angle = float(rng.uniform(0.0, np.pi / 2))
+    a = float(rng.uniform(0.8e-3, 3e-3))
+    return speed * np.cos(angle), speed * np.sin(angle), a, 200 + k
+
+
+def pool(name: str, path: Path, n: int):
+    """Noiseless signals (P, 4, N), reference rms (P,) and truth (P, 3) = (|vx|, |vy|, a); cached in ``path``."""
+    import dataclasses
+
     import numpy as np
 
     if path.exists():
         z = np.load(path)
-        return z["clean"], z["noise_std"], z["truth"]
+        return z["clean"], z["ref_rms"], z["truth"]
+    from tactile_jax.errors import TactileInputError
     from tactile_jax.scene import Scene, simulate
+    from tactile_jax.texture import RandomTexture
 
-    rng = np.random.default_rng(7)
-    clean, noise, truth = [], [], []
+    rng = np.random.default_rng({"x": 7, "oblique": 8}[name])
+    n_samples = SETS[name]["n_samples"]
+    clean, ref, truth = [], [], []
     for k in range(n):
-        speed = float(np.exp(rng.uniform(np.log(0.02), np.log(0.08))))
-        axis = k % 2
-        a = float(rng.uniform(1.5e-3, 5e-3))
-        vel = (speed, 0.0) if axis == 0 else (0.0, speed)
-        rec = simulate(Scene(velocity=vel, contact_radius=a, duration=N_SAMPLES / FS, fs=FS, snr_db=None, seed=100 + k))
+        vx, vy, a, seed = _scene_params(name, k, rng)
+        scene = Scene(texture=RandomTexture(), velocity=(vx, vy), contact_radius=a, duration=n_samples / FS, fs=FS,
+                      snr_db=None, seed=seed)
+        t0 = time.perf_counter()
+        try:
+            rec = simulate(scene)
+        except TactileInputError:       # a large contact at a fast slip: a coarser grid still resolves d1
+            rec = simulate(dataclasses.replace(scene, grid_spacing=60e-6))
         sig = np.asarray(rec.signals, float)
-        p_ref = max(np.mean(sig[0] ** 2), np.mean(sig[2] ** 2))
         clean.append(sig)
-        noise.append(np.sqrt(p_ref) * 10 ** (-SNR_DB / 20))
-        truth.append((vel[0], vel[1], a))
-        print(f"  pool scene {k + 1}/{n}: v = ({100 * vel[0]:.2f}, {100 * vel[1]:.2f}) cm/s, a = {1e3 * a:.2f} mm",
-              file=sys.stderr)
-    clean, noise, truth = np.stack(clean), np.array(noise), np.array(truth)
+        ref.append(np.sqrt(max(np.mean(sig[0] ** 2), np.mean(sig[2] ** 2))))
+        truth.append((abs(vx), abs(vy), a))
+        print(f"  {name} pool scene {k + 1}/{n}: v = ({100 * vx:.2f}, {100 * vy:.2f}) cm/s, a = {1e3 * a:.2f} mm "
+              f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+    clean, ref, truth = np.stack(clean), np.array(ref), np.array(truth)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, clean=clean, noise_std=noise, truth=truth)
-    return clean, noise, truth
+    np.savez(path, clean=clean, ref_rms=ref, truth=truth)
+    return clean, ref, truth
 
 
-def _draw(clean, noise, start, stop):
-    """Records start..stop-1: pool scene j % P plus noise seeded by j."""
+def draw(name: str, clean, ref, j: int):
+    """Record j of set ``name``: pool scene j % P plus noise seeded by j, in the set's dtype; and its SNR."""
     import numpy as np
 
-    out = np.empty((stop - start, 4, N_SAMPLES))
-    idx = np.arange(start, stop) % len(clean)
-    for k, j in enumerate(range(start, stop)):
-        out[k] = clean[idx[k]] + noise[idx[k]] * np.random.default_rng(10_000 + j).standard_normal((4, N_SAMPLES))
-    return out, idx
+    lo, hi = SETS[name]["snr_db"]
+    snr = lo if lo == hi else float(np.random.default_rng(20_000 + j).uniform(lo, hi))
+    k = j % len(clean)
+    x = clean[k] + ref[k] * 10 ** (-snr / 20) * np.random.default_rng(10_000 + j).standard_normal(clean[k].shape)
+    return x.astype(SETS[name]["dtype"]), snr
 
 
-def _errors(est_v, est_a, truth_idx, truth):
+def _write_inputs(name, clean, ref, size, folder: Path) -> list[Path]:
     import numpy as np
 
-    speed = np.maximum(truth[truth_idx, 0], truth[truth_idx, 1])
-    along = np.where(truth[truth_idx, 0] >= truth[truth_idx, 1], est_v[:, 0], est_v[:, 1])
-    dv = 100 * (along / speed - 1)
-    da = 100 * (est_a / truth[truth_idx, 2] - 1)
-    return dv, da
+    from tactile_jax.io import write_recording
+    from tactile_jax.recording import Recording
+    from tactile_jax.sensor import PAPER_SENSOR
+
+    paths = []
+    for f, start in enumerate(range(0, size, FILE_RECORDS)):
+        stop = min(start + FILE_RECORDS, size)
+        sig = np.stack([draw(name, clean, ref, j)[0] for j in range(start, stop)])
+        rec = Recording(signals=sig, fs=FS, depths=(PAPER_SENSOR.d1, PAPER_SENSOR.d2),
+                        curvature_radius=PAPER_SENSOR.curvature_radius)
+        paths.append(write_recording(folder / f"{name}_{f:04d}.npz", rec))
+    return paths
 
 
-def _stats(d):
+# --------------------------------------------------------------------------- statistics
+
+
+def _median(values):
     import numpy as np
 
-    d = d[np.isfinite(d)]
-    return {"bias": float(np.mean(d)) if d.size else None, "rmse": float(np.sqrt(np.mean(d ** 2))) if d.size else None,
-            "median_abs": float(np.median(np.abs(d))) if d.size else None, "n": int(d.size)}
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    return float(np.median(v)) if v.size else None
 
 
-def one_size(size: int, args) -> dict:
-    """Run one batch size in this process; return the measurements."""
+def accuracy(est, truth) -> dict:
+    """est: rows (dicts with vx, vx_err, vy, vy_err, a, a_err); truth (n, 3). Median errors in % of |v| and
+    1-/2-sigma coverage of vx, vy and a (where the row has the value and its error)."""
+    import numpy as np
+
+    out = {"n": len(est)}
+    speed = np.hypot(truth[:, 0], truth[:, 1])
+    for i, name in enumerate(("vx", "vy")):
+        out[f"{name}_err_pct_median"] = _median(
+            [100 * abs(r[name] - truth[k, i]) / speed[k] if r.get(name) is not None else None
+             for k, r in enumerate(est)])
+    for i, name in enumerate(("vx", "vy", "a")):
+        dev = [(abs(r[name] - truth[k, i]), r[name + "_err"]) for k, r in enumerate(est)
+               if r.get(name) is not None and r.get(name + "_err") and np.isfinite(r[name]) and np.isfinite(
+                   r[name + "_err"])]
+        out[f"{name}_n"] = len(dev)
+        out[f"{name}_cover1"] = float(np.mean([d <= e for d, e in dev])) if dev else None
+        out[f"{name}_cover2"] = float(np.mean([d <= 2 * e for d, e in dev])) if dev else None
+    return out
+
+
+def reported_cover(rows, truth) -> dict:
+    """1-sigma coverage of vx and vy with the profile-likelihood interval of a minor component where the row has
+    one (``vx_lo``, ``vx_hi``), else +/- err (what ``coverage.py`` calls the reported intervals)."""
+    import numpy as np
+
+    out = {}
+    for i, name in enumerate(("vx", "vy")):
+        hits = []
+        for k, r in enumerate(rows):
+            if r.get(name) is None or not r.get(name + "_err"):
+                continue
+            t = truth[k, i]
+            if r.get(name + "_lo") is not None:
+                hi = np.inf if r.get(name + "_hi") is None else r[name + "_hi"]
+                hits.append(r[name + "_lo"] <= t <= hi)
+            else:
+                hits.append(abs(r[name] - t) <= r[name + "_err"])
+        out[f"{name}_cover1_reported"] = float(np.mean(hits)) if hits else None
+    return out
+
+
+# --------------------------------------------------------------------------- one set and size (own process)
+
+
+def one(name: str, size: int, args) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
     import numpy as np
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import scipy_reference as ref
-    from tactile_jax.batch_fit import ChunkMeta, FitProgram
-    from tactile_jax.fit import FitOptions
+    import scipy_reference as ref_mod
+    from tactile_jax import batch as batch_mod
+    from tactile_jax.sensor import PAPER_SENSOR
     from tactile_jax.spectra import default_nperseg
 
-    clean, noise, truth = _pool(Path(args.out) / f"throughput_pool_{args.pool}.npz", args.pool)
-    chunk = min(args.chunk, size)
-    program = FitProgram(options=FitOptions(), model=args.model, solver=args.solver)
-    nperseg = default_nperseg(N_SAMPLES - (FitOptions().prewhiten or 0))
+    compiles = collections.defaultdict(lambda: [0, 0.0])
+    phase = ["setup"]
 
-    def meta(b):
-        return ChunkMeta(fs=np.full(b, FS), depths=np.tile([0.265e-3, 0.925e-3], (b, 1)), gains=np.ones((b, 2)),
-                         velocity=np.zeros((b, 2)), known=np.zeros(b, bool), curvature_radius=np.full(b, 0.03))
+    def listen(event, duration, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles[phase[0]][0] += 1
+            compiles[phase[0]][1] += duration
 
-    # compile: one warm-up chunk (drawn past the measured records), then the same chunk again
-    warm, _ = _draw(clean, noise, 10 ** 7, 10 ** 7 + chunk)
-    t0 = time.perf_counter()
-    program(warm, meta(chunk))
-    t_first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    program(warm, meta(chunk))
-    t_again = time.perf_counter() - t0
-    program.timings = {"spectra": 0.0, "fit": 0.0}
-    rss_after_compile = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    est_v, est_a, status, t_gen = [], [], [], 0.0
-    t_run = 0.0
-    for start in range(0, size, chunk):
-        stop = min(start + chunk, size)
-        tg = time.perf_counter()
-        x, _ = _draw(clean, noise, start, stop)
-        if stop - start < chunk:                                   # pad the last chunk with copies
-            x = np.concatenate([x, np.repeat(x[:1], chunk - (stop - start), axis=0)])
-        t_gen += time.perf_counter() - tg
-        t0 = time.perf_counter()
-        fit = program(x, meta(chunk))
-        t_run += time.perf_counter() - t0
-        n = stop - start
-        est_v.append(np.stack([fit.vx[:n], fit.vy[:n]], axis=-1))
-        est_a.append(fit.a[:n])
-        status.extend(fit.status[:n])
-        del x
-    est_v, est_a = np.concatenate(est_v), np.concatenate(est_a)
-    idx = np.arange(size) % len(clean)
-    dv, da = _errors(est_v, est_a, idx, truth)
-    ok = np.array([s in ("ok", "poor_fit", "not_converged") for s in status])
-    # scipy loop on the first records
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    clean, ref, truth_pool = pool(name, Path(args.out) / f"throughput_pool_{name}_{args.pool}.npz", args.pool)
+    work = Path(tempfile.mkdtemp(prefix=f"tjx_tp_{name}_"))
+    try:
+        files = _write_inputs(name, clean, ref, size, work)
+        passes = []
+        for k, label in enumerate(("with compile", "warm")):
+            batch_mod._NPZ_CACHE.clear()            # the second pass reads its inputs again, as the first
+            phase[0] = label
+            t0 = time.perf_counter()
+            summary = batch_mod.run_batch([str(p) for p in files], work / f"rows_{k}.json", chunk_size=args.chunk,
+                                          progress=False, resume=False)
+            wall = time.perf_counter() - t0
+            rows = json.loads((work / f"rows_{k}.json").read_text())
+            passes.append({"pass": label, "wall_s": wall, "rate": size / wall, "timings": summary.timings,
+                           "n_rows": summary.n_rows, "n_failed": summary.n_failed,
+                           "compiles": compiles[label][0], "compile_s": compiles[label][1]})
+            print(f"  {name} {size}: {label}: {wall:.1f} s, {size / wall:.2f} rec/s, {compiles[label][0]} compiles "
+                  f"({compiles[label][1]:.1f} s)", file=sys.stderr)
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        # rows in record order: (file index, index) -> j
+        order = {str(p): f * FILE_RECORDS for f, p in enumerate(files)}
+        by_j = {order[r["file"]] + int(r["index"]): r for r in rows}
+        idx = np.arange(size)
+        truth = truth_pool[idx % len(clean)]
+        rows = [by_j.get(j, {"status": "missing"}) for j in idx]
+        first = json.loads((work / "rows_0.json").read_text())
+        same = all(a.get("vx") == b.get("vx") and a.get("status") == b.get("status")
+                   for a, b in zip(sorted(first, key=lambda r: (r["file"], r["index"])),
+                                   sorted(json.loads((work / "rows_1.json").read_text()),
+                                          key=lambda r: (r["file"], r["index"]))))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    status = collections.Counter(r.get("status") for r in rows)
+    ok = np.array([r.get("status") == "ok" for r in rows])
+    acc = accuracy([r for r, o in zip(rows, ok) if o], truth[ok])
+    acc.update(reported_cover([r for r, o in zip(rows, ok) if o], truth[ok]))
+    # the scipy loop on the same records
     n_sp = min(size, args.scipy_max)
-    sp = np.full((n_sp, 6), np.nan)
-    t_sp = 0.0
-    for j in range(n_sp):                                          # timed per record (draws excluded)
-        x, _ = _draw(clean, noise, j, j + 1)
+    n_samples = SETS[name]["n_samples"]
+    nperseg = default_nperseg(n_samples)
+    sp, t_sp = [], 0.0
+    for j in range(n_sp):
+        x, _ = draw(name, clean, ref, j)
+        x = np.asarray(x, float)
         t1 = time.perf_counter()
-        sp[j] = ref.fit_record(x[0], FS, 0.265e-3, 0.925e-3, nperseg)
+        vx, vx_err, vy, vy_err, a, a_err = ref_mod.fit_record(x, FS, PAPER_SENSOR.d1, PAPER_SENSOR.d2, nperseg)
         t_sp += time.perf_counter() - t1
-    n_timed = n_sp
-    dv_sp, da_sp = _errors(sp[:, [0, 2]], sp[:, 4], idx[:n_sp], truth)
-    both = np.isfinite(dv[:n_sp]) & np.isfinite(dv_sp)
-    # numpy Welch floor (vectorised over chunks)
-    t_floor, n_floor = 0.0, min(size, args.floor_max)
-    for start in range(0, n_floor, chunk):
-        x, _ = _draw(clean, noise, start, min(start + chunk, n_floor))
-        t1 = time.perf_counter()
-        ref.welch_floor(x, FS, nperseg)
-        t_floor += time.perf_counter() - t1
-    return {
-        "size": size, "chunk": chunk, "model": args.model, "solver": args.solver, "compile_s": t_first - t_again, "first_chunk_s": t_first,
-        "batch_s": t_run, "batch_rate": size / t_run, "spectra_s": program.timings["spectra"],
-        "fit_s": program.timings["fit"], "scipy_rate": n_timed / t_sp, "scipy_n": n_sp, "scipy_timed": n_timed,
-        "floor_rate": n_floor / t_floor, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "rss_after_compile_mb": rss_after_compile, "fitted_fraction": float(ok.mean()),
-        "scipy_fitted_fraction": float(np.mean(np.isfinite(dv_sp))),
-        "err_batch": {"v": _stats(dv), "a": _stats(da)},
-        "err_batch_common": {"v": _stats(dv[:n_sp][both]), "a": _stats(da[:n_sp][both])},
-        "err_scipy_common": {"v": _stats(dv_sp[both]), "a": _stats(da_sp[both])},
-    }
+        sp.append({k: (None if not np.isfinite(v) else float(v)) for k, v in
+                   zip(("vx", "vx_err", "vy", "vy_err", "a", "a_err"), (vx, vx_err, vy, vy_err, a, a_err))})
+    fitted = np.array([r["vx"] is not None or r["vy"] is not None for r in sp])
+    sp_acc = accuracy([r for r, f in zip(sp, fitted) if f], truth[:n_sp][fitted])
+    return {"set": name, "size": size, "chunk": args.chunk, "pool": args.pool, "passes": passes,
+            "rate_with_compile": passes[0]["rate"], "rate_warm": passes[1]["rate"],
+            "passes_agree": bool(same), "status": dict(status), "ok_share": float(ok.mean()), "accuracy_ok": acc,
+            "scipy": {"n": n_sp, "seconds": t_sp, "rate": n_sp / t_sp if t_sp > 0 else None, "nperseg": nperseg,
+                      "fitted_share": float(fitted.mean()) if n_sp else None, "accuracy_fitted": sp_acc},
+            "peak_rss_mb": rss, "cache_dir": jax.config.jax_compilation_cache_dir,
+            "records": [{"j": int(j), "scene": int(j % len(clean)), "truth": [float(v) for v in truth[j]],
+                         **{k: rows[j].get(k) for k in ("status", "vx", "vx_err", "vy", "vy_err", "a", "a_err",
+                                                       "redchi", "message")}} for j in idx]}
 
 
-def compare_solvers(n: int, args) -> dict:
-    """The pair model with gauss_newton and with optimistix LM on the same ``n`` records: differences
-    in units of the error bars, statuses, stage times. Prints a summary, writes solvers_pair.json."""
-    import collections
+# --------------------------------------------------------------------------- report
 
+
+def machine() -> dict:
     import jax
-
-    jax.config.update("jax_enable_x64", True)
-    import numpy as np
-
-    from tactile_jax.batch_fit import ChunkMeta, FitProgram
-
-    clean, noise, truth = _pool(Path(args.out) / f"throughput_pool_{args.pool}.npz", args.pool)
-    chunk = min(args.chunk, n)
-    meta = ChunkMeta(fs=np.full(chunk, FS), depths=np.tile([0.265e-3, 0.925e-3], (chunk, 1)), gains=np.ones((chunk, 2)),
-                     velocity=np.zeros((chunk, 2)), known=np.zeros(chunk, bool), curvature_radius=np.full(chunk, 0.03))
-    fits, times = {}, {}
-    for solver in ("gauss_newton", "optimistix"):
-        program = FitProgram(model="pair", solver=solver)
-        parts = []
-        t0 = time.perf_counter()
-        for start in range(0, n, chunk):
-            x, _ = _draw(clean, noise, start, min(start + chunk, n))
-            if len(x) < chunk:
-                x = np.concatenate([x, np.repeat(x[:1], chunk - len(x), axis=0)])
-            parts.append(program(x, meta))
-        times[solver] = {"total_s": time.perf_counter() - t0, **program.timings}
-        fits[solver] = {k: np.concatenate([np.asarray(getattr(p, k)) for p in parts])[:n]
-                        for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "status", "message")}
-    g, o = fits["gauss_newton"], fits["optimistix"]
-    both_ok = (g["status"] == "ok") & (o["status"] == "ok")
-    out = {"n": n, "times": times, "status_gauss_newton": dict(collections.Counter(g["status"])),
-           "status_optimistix": dict(collections.Counter(o["status"])),
-           "status_agree": int(np.sum(g["status"] == o["status"])), "both_ok": int(both_ok.sum())}
-    differ = g["status"] != o["status"]
-    weak = np.array(["too weak to measure a" in m for m in g["message"]]) & np.array(
-        ["too weak to measure a" in m for m in o["message"]])
-    out["status_differ_with_a_too_weak_in_both"] = int(np.sum(differ & weak))
-    for name in ("vx", "vy", "a"):
-        a, b, e = g[name], o[name], o[name + "_err"]
-        fin = np.isfinite(a) & np.isfinite(b) & np.isfinite(e) & (e > 0)
-        d = np.abs(a - b) / np.where(fin, e, 1.0)
-        out[f"{name}_max_diff_sigma_both_ok"] = float(np.max(d[fin & both_ok])) if np.any(fin & both_ok) else None
-        out[f"{name}_max_diff_sigma_all"] = float(np.max(d[fin])) if np.any(fin) else None
-        out[f"{name}_nan_mismatch"] = int(np.sum(np.isfinite(a) != np.isfinite(b)))
-    print(json.dumps(out, indent=1))
-    (Path(args.out) / "solvers_pair.json").write_text(json.dumps(out, indent=1))
-    return out
-
-
-def _machine() -> str:
-    import jax
+    import jaxlib
     import numpy as np
     import scipy
 
+    from tactile_jax.plotting import provenance
+
     dev = jax.devices()[0]
-    return (f"{platform.machine()} {os.cpu_count()} cores ({dev.platform}: {dev.device_kind}), Python "
-            f"{platform.python_version()}, jax {jax.__version__}, numpy {np.__version__}, scipy {scipy.__version__}")
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(), "load_avg_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+            "python": platform.python_version(), "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+            "numpy": np.__version__, "scipy": scipy.__version__, "backend": f"{dev.platform} ({dev.device_kind})",
+            "threads_env": {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "XLA_FLAGS")},
+            "provenance": provenance()}
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sizes", default="100,1000,10000")
-    ap.add_argument("--pool", type=int, default=16)
-    ap.add_argument("--chunk", type=int, default=256)
-    ap.add_argument("--model", default="pair", choices=["pair", "joint"])
-    ap.add_argument("--solver", default="gauss_newton", choices=["gauss_newton", "optimistix", "jaxopt"],
-                    help="the pair fits' solver (batch_fit.SOLVERS)")
-    ap.add_argument("--compare-solvers", type=int, default=0, metavar="N",
-                    help="only compare gauss_newton with optimistix on the first N records, then exit")
-    ap.add_argument("--scipy-max", type=int, default=1000, help="scipy loop on at most this many records")
-    ap.add_argument("--floor-max", type=int, default=2000, help="numpy floor on at most this many records")
-    ap.add_argument("--out", default="benchmarks/out")
-    ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
-    args = ap.parse_args()
-    if args.one is not None:
-        print(json.dumps(one_size(args.one, args)))
-        return
-    if args.compare_solvers:
-        compare_solvers(args.compare_solvers, args)
-        return
-    Path(args.out).mkdir(parents=True, exist_ok=True)
-    results = []
-    for size in (int(s) for s in args.sizes.split(",")):
-        cmd = [sys.executable, __file__, "--one", str(size)] + [f"--{k.replace('_', '-')}={v}" for k, v in vars(args).items()
-                                                              if k not in ("one", "sizes")]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode:
-            print(proc.stderr[-3000:], file=sys.stderr)
-            raise SystemExit(f"size {size} failed")
-        results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-        print(f"size {size} done: {results[-1]['batch_rate']:.1f} rec/s", file=sys.stderr)
-    import jax
+def _pct(x):
+    return "-" if x is None else f"{100 * x:.0f}"
 
-    jax.config.update("jax_enable_x64", True)
-    machine = _machine()
-    lines = [f"machine: {machine}", f"model: {args.model}, solver {args.solver}, chunk {args.chunk}, pool {args.pool} scenes, 4 x {N_SAMPLES} "
-             f"samples at {FS:g} Hz, SNR {SNR_DB:g} dB", "",
-             "| recordings | batch rec/s | compile s | spectra s | fit s | scipy loop rec/s | speed-up | numpy Welch floor rec/s | peak RSS MB |",
-             "|---|---|---|---|---|---|---|---|---|"]
+
+def _num(x, fmt=".2f"):
+    return "-" if x is None else format(x, fmt)
+
+
+def table(results, m, args) -> str:
+    lines = [f"machine: {m['processor']}, {m['cpu_count']} CPUs, {m['platform']}, Python {m['python']}, jax {m['jax']} "
+             f"(jaxlib {m['jaxlib']}, {m['backend']}), numpy {m['numpy']}, scipy {m['scipy']}; load average at start "
+             f"{[round(v, 2) for v in m['load_avg_1_5_15']]}",
+             f"run_batch, chunk_size {args.chunk}, pool {args.pool} scenes per set, float64 compute; "
+             "errors and coverage over the rows with status ok", ""]
+    for name in dict.fromkeys(r["set"] for r in results):
+        lines.append(f"- {name}: {SETS[name]['label']}")
+    lines += ["", "| set | records | rec/s with compile | rec/s warm | compiles (s) | ok | median |vx| err % of |v| | "
+                  "median |vy| err % of |v| | 1-sigma cover vx / vy / a % | 2-sigma cover vx / vy / a % | n a | "
+                  "scipy rec/s | warm / scipy |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
-        lines.append(f"| {r['size']} | {r['batch_rate']:.1f} | {r['compile_s']:.1f} | {r['spectra_s']:.1f} | "
-                     f"{r['fit_s']:.1f} | {r['scipy_rate']:.1f} ({r['scipy_timed']} timed) | "
-                     f"{r['batch_rate'] / r['scipy_rate']:.1f}x | {r['floor_rate']:.0f} | {r['peak_rss_mb']:.0f} |")
-    lines += ["", "| recordings | method | fitted | |v| bias % | |v| RMSE % | a bias % | a RMSE % | on |",
+        a, p0 = r["accuracy_ok"], r["passes"][0]
+        sp = r["scipy"]["rate"]
+        lines.append(
+            f"| {r['set']} | {r['size']} | {r['rate_with_compile']:.2f} | {r['rate_warm']:.2f} | "
+            f"{p0['compiles']} ({p0['compile_s']:.0f}) | {_pct(r['ok_share'])} % | {_num(a['vx_err_pct_median'])} | "
+            f"{_num(a['vy_err_pct_median'])} | {_pct(a['vx_cover1'])} / {_pct(a['vy_cover1'])} / {_pct(a['a_cover1'])} "
+            f"| {_pct(a['vx_cover2'])} / {_pct(a['vy_cover2'])} / {_pct(a['a_cover2'])} | {a['a_n']} | "
+            f"{_num(sp, '.1f')} ({r['scipy']['n']}) | {_num(r['rate_warm'] / sp if sp else None, '.3f')} |")
+    lines += ["", "| set | records | statuses | warm pass: spectra s / fit s / write s | peak RSS MB | "
+                  "scipy: fitted | scipy median |vx| / |vy| err % of |v| | scipy 1-sigma cover vx / vy / a % |",
               "|---|---|---|---|---|---|---|---|"]
     for r in results:
-        for name, key, frac in (("batch (all)", "err_batch", r["fitted_fraction"]),
-                                ("batch", "err_batch_common", None), ("scipy", "err_scipy_common", r["scipy_fitted_fraction"])):
-            e = r[key]
-            f = "" if frac is None else f"{100 * frac:.0f} %"
-            def fmt(x):
-                return "n/a" if x is None else f"{x:+.2f}"
-            lines.append(f"| {r['size']} | {name} | {f} | {fmt(e['v']['bias'])} | {e['v']['rmse'] or float('nan'):.2f} | "
-                         f"{fmt(e['a']['bias'])} | {e['a']['rmse'] or float('nan'):.2f} | {e['v']['n']} records |")
-    table = "\n".join(lines)
-    print(table)
-    (Path(args.out) / f"throughput_{args.model}.json").write_text(json.dumps({"machine": machine, "results": results},
-                                                                            indent=1))
-    _figure(results, Path(args.out) / f"throughput_{args.model}.png", machine, args)
+        t = r["passes"][1]["timings"]
+        s = r["scipy"]["accuracy_fitted"]
+        lines.append(f"| {r['set']} | {r['size']} | {r['status']} | {t['spectra']:.1f} / {t['fit']:.1f} / "
+                     f"{t['write']:.2f} | {r['peak_rss_mb']:.0f} | {_pct(r['scipy']['fitted_share'])} % | "
+                     f"{_num(s['vx_err_pct_median'])} / {_num(s['vy_err_pct_median'])} | {_pct(s['vx_cover1'])} / "
+                     f"{_pct(s['vy_cover1'])} / {_pct(s['a_cover1'])} |")
+    return "\n".join(lines)
 
 
-def _figure(results, path, machine, args):
+def figure(results, path: Path, m, args):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np
 
-    from tactile_jax.plotting import provenance
+    from tactile_jax.plotting import save_figure
 
-    sizes = [r["size"] for r in results]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
-    ax1.loglog(sizes, [r["batch_rate"] for r in results], "o-", label=f"batch ({args.model}, chunk {args.chunk})")
-    ax1.loglog(sizes, [r["scipy_rate"] for r in results], "s--", label="scipy loop (welch + curve_fit)")
-    ax1.loglog(sizes, [r["floor_rate"] for r in results], "^:", label="numpy Welch only (floor)")
-    ax1.set_xlabel("recordings in the batch")
-    ax1.set_ylabel("recordings / s")
-    ax1.legend(fontsize=8)
-    ax2.semilogx(sizes, [r["peak_rss_mb"] for r in results], "o-", label="peak RSS")
-    ax2.semilogx(sizes, [r["rss_after_compile_mb"] for r in results], "x--", label="after compile")
-    ax2.set_xlabel("recordings in the batch")
-    ax2.set_ylabel("MB")
-    ax2.set_ylim(bottom=0)
-    ax2.legend(fontsize=8)
-    fig.suptitle("tactile-jax batch throughput, 4 x 8192 samples per recording", fontsize=10)
-    fig.text(0.01, 0.005, provenance() + " | " + machine, fontsize=5)
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    fig.savefig(path, dpi=120)
+    labels = [f"{r['set']}\n{r['size']} rec" for r in results]
+    series = (("run_batch, with compile", [r["rate_with_compile"] for r in results]),
+              ("run_batch, warm", [r["rate_warm"] for r in results]),
+              ("scipy loop (reference)", [r["scipy"]["rate"] or np.nan for r in results]))
+    fig, ax = plt.subplots(figsize=(1.6 + 1.9 * len(results), 3.8))
+    x = np.arange(len(results))
+    w = 0.26
+    for k, (label, values) in enumerate(series):
+        bars = ax.bar(x + (k - 1) * w, values, w, label=label)
+        ax.bar_label(bars, fmt="%.3g", fontsize=7)
+    ax.set_yscale("log")
+    ax.set_xticks(x, labels)
+    ax.set_ylabel("recordings / s")
+    ax.set_title(f"tactile-jax batch throughput (chunk {args.chunk}); {m['processor']}, {m['cpu_count']} CPUs",
+                 fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_ylim(top=ax.get_ylim()[1] * 8)                # room for the legend above the bars
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    save_figure(fig, path)
     print(f"figure: {path}", file=sys.stderr)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", default="100", help="comma-separated batch sizes (records per set)")
+    ap.add_argument("--set", dest="sets", default="both", choices=["x", "oblique", "both"])
+    ap.add_argument("--pool", type=int, default=16, help="simulated scenes per set")
+    ap.add_argument("--chunk", type=int, default=32, help="run_batch's chunk_size")
+    ap.add_argument("--scipy-max", type=int, default=1000, help="scipy loop on at most this many records")
+    ap.add_argument("--out", default="benchmarks/out")
+    ap.add_argument("--one", nargs=2, metavar=("SET", "SIZE"), default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.one is not None:
+        print(json.dumps(one(args.one[0], int(args.one[1]), args)))
+        return
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    sets = ["x", "oblique"] if args.sets == "both" else [args.sets]
+    env = dict(os.environ)
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)             # every process compiles afresh: "with compile" is that
+    results = []
+    for name in sets:
+        for size in sizes:
+            cmd = [sys.executable, __file__, "--one", name, str(size), f"--pool={args.pool}", f"--chunk={args.chunk}",
+                   f"--scipy-max={args.scipy_max}", f"--out={args.out}"]
+            proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            sys.stderr.write("".join(line + "\n" for line in proc.stderr.splitlines()
+                                     if line.startswith("  ") and "Warning" not in line))
+            if proc.returncode:
+                print(proc.stderr[-3000:], file=sys.stderr)
+                raise SystemExit(f"set {name}, size {size} failed")
+            results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    m = machine()
+    text = table(results, m, args)
+    print(text)
+    out = Path(args.out)
+    (out / "throughput.json").write_text(json.dumps({"machine": m, "sets": {k: SETS[k] for k in sets},
+                                                     "chunk": args.chunk, "pool": args.pool, "results": results,
+                                                     "table": text}, indent=1, default=str))
+    figure(results, out / "throughput.png", m, args)
+    print(f"wrote {out / 'throughput.json'}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -228,7 +228,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     if cache_dir and not jax.config.jax_compilation_cache_dir:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    from .fit import result_from_summary, settings_of
+    from .fit import result_from_summary, settings_of, settle
     from .joint import run
     from .model_select import model_name
     from .recording import Recording, validate_recording
@@ -270,7 +270,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     if good:
         t1 = time.perf_counter()
         try:
-            summaries = run.fit_many(recs, settings, size)
+            summaries = [settle(r, settings, s)[0] for r, s in zip(recs, run.fit_many(recs, settings, size))]
             for (p, src, i), s, (vel, radius) in zip(good, summaries, metas):
                 res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
                                           model=model_name(s.free, vel is not None))

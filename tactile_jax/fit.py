@@ -37,7 +37,7 @@ from .recording import Recording, validate_recording
 from .sensor import PAPER_SENSOR
 
 __all__ = ["FitOptions", "FitResult", "TextureSection", "fit_recording", "fit_spectra", "fit_record",
-           "result_from_summary", "settings_of", "model_curves", "RESULT_FIELDS"]
+           "result_from_summary", "settle", "settings_of", "model_curves", "RESULT_FIELDS"]
 
 #: the data contract's result fields, in order (DESIGN.md); more follow in ``FitResult.to_record``
 RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth",
@@ -469,6 +469,14 @@ def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius
     res.summary = s
     model_select.annotate(res)
     return res
+
+
+def settle(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, int]:
+    """More solves of the pipeline's program from where a fit stopped unsettled (``fit`` and ``batch``):
+    the last summary and how many solves ran (0 where it had settled)."""
+    if int(s.status) != STATUS.index("not_converged"):
+        return s, 0
+    return _continue(_Refitter(rec, settings), s)
 
 
 def _continue(refit: _Refitter, s: Summary):

@@ -86,7 +86,7 @@ def _option(path, key: str, value) -> Any:
     if key == "prewhiten":
         n = _number(path, key, value, integer=True)
         return n if n > 0 else None
-    if key in ("nperseg", "n_knots"):
+    if key == "nperseg":
         return _number(path, key, value, integer=True, positive=True)
     if key in ("smoothness", "max_err"):
         return _number(path, key, value, positive=True)

@@ -1,10 +1,7 @@
 """``tactile-jax fit``: reports, result files, figures, MCMC and failures as rows.
 
 One short simulated scene (8 s, the paper's Fig. 5 slip along x) is fitted by every
-test, so the compiled joint-model functions are built once per process. The fits run
-without the cross-pair chain (``--cross-pairs 0``): these tests are about the command, and the
-chain's model compiles for twice as long (the module took 164 s with it in session 15, every
-check passing; tests/test_fit.py and examples/posterior_corner.py run the default with the chain).
+test, so the compiled joint pipeline is built once per process.
 """
 
 import json
@@ -20,7 +17,7 @@ from tactile_jax.results import read_results, write_results
 from tactile_jax.scene import Scene, simulate
 
 VX = 0.023
-NO_CHAIN = ["--cross-pairs", "0"]
+NO_CHAIN: list = []
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.crb import pair_crb
 from tactile_jax.pair_fit import (_residuals, centroid_shift, fit_pair, kernel_log_weights, noise_err,
                                   pair_leakage)
 from tactile_jax.r_curve import log_r_exact
@@ -93,10 +92,6 @@ def test_noise_err_stays_between_its_floor_and_the_bendat_piersol_error(filtered
     assert np.all(got[mask] <= e[mask] * (1 + 1e-12))
     assert np.all(got[mask] >= np.sqrt(0.05) * e[mask] * (1 - 1e-12))
     assert np.median(got[mask] / e[mask]) < 0.9    # noise-free: most of 1 - coherence was the slope of R
-    bound = pair_crb(omega, e, mask, D1, D2, SPEED, A, kernel=spec.kernel, spectrum=np.asarray(whitened_psd(spec)[0]),
-                     leakage=lk)
-    plain = pair_crb(omega, e, mask, D1, D2, SPEED, A, kernel=spec.kernel, spectrum=np.asarray(whitened_psd(spec)[0]))
-    assert np.isfinite(float(bound.a_sd)) and float(bound.a_sd) < float(plain.a_sd)
 
 
 def test_leave_one_out_and_multitaper_spectra_carry_their_leakage_or_none():

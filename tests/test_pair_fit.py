@@ -5,7 +5,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax import batch_fit
 from tactile_jax.fit import FitOptions
 from tactile_jax.pair_fit import _residuals, fit_pair, kernel_log_weights
 from tactile_jax.r_curve import log_r_exact
@@ -47,7 +46,7 @@ def test_weighted_window_recovers_the_truth_where_the_flat_one_is_biased(exact_r
     flat = fit_pair(OMEGA, y, err, mask, D1, D2, kernel=KERNEL, speed0=0.02, a0=3e-3)
     assert weighted.converged and flat.converged
     assert weighted.speed == pytest.approx(SPEED, rel=1e-6) and weighted.a == pytest.approx(A, rel=1e-5)
-    # the flat window misreads the same noise-free ratio: a by several per cent (session 6's a bias at 1.5 cm/s, 4 mm)
+    # the flat window misreads the same noise-free ratio: a by several per cent
     assert abs(flat.a / A - 1) > 0.02
 
 
@@ -62,26 +61,20 @@ def test_kernel_log_weights_flat_and_weighted():
     np.testing.assert_array_equal(kernel_log_weights(OMEGA, KERNEL, np.zeros(OMEGA.size))[1], log_w)
 
 
-def test_batch_pair_models_agree_with_fit_pair(exact_ratio):
-    """The batch's two layouts of the pair model (compacted bins, half-bin grid) are pair_fit's model."""
+def test_the_joint_pipelines_pair_starts_are_pair_fits_model(exact_ratio):
+    """The joint pipeline starts from each pair fitted alone (``joint.core._pair_residuals``, the flat
+    spectral window on the fixed kernel grid): the same residuals as ``pair_fit``'s."""
+    from tactile_jax.joint.core import _pair_residuals as core_pair
+    from tactile_jax.joint.segments import KERNEL_OFFSETS
+
     y, err, mask = exact_ratio
-    offsets, weights = batch_fit._kept_kernel(KERNEL)
-    log_w = jnp.log(jnp.asarray(weights))
-    two = lambda x: jnp.asarray(np.stack([x, x]))             # noqa: E731  (both pairs the same)
-    stage = {"omega": jnp.asarray(OMEGA), "band": two(mask), "log_ratio": two(y), "err": two(err),
-             "speed0": jnp.full(2, 0.02), "a0": jnp.full(2, 3e-3), "log_seen": two(np.log(_spectrum(OMEGA)))}
     theta = jnp.log(jnp.asarray([0.017, 3.5e-3, 1.1]))
-    off_j, lw_j = kernel_log_weights(OMEGA, KERNEL, _spectrum(OMEGA))
+    off, lw = kernel_log_weights(OMEGA, KERNEL)
     ref = np.asarray(_residuals(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
-                                        D1, D2, jnp.asarray(off_j), jnp.asarray(lw_j))))[mask]
-    depths = jnp.asarray([D1, D2])
-    args = (stage, depths, jnp.ones(2), jnp.zeros(2), jnp.zeros(2, bool))
-    _, compact, _ = batch_fit._pair_problems(*args, int(mask.sum()), FitOptions(), jnp.asarray(offsets), log_w)
-    got = np.asarray(batch_fit._pair_residuals(theta, jax.tree_util.tree_map(lambda t: t[0], compact)))
+                                        D1, D2, jnp.asarray(off), jnp.asarray(lw))))
+    w = np.full(KERNEL_OFFSETS.size, -2e4)
+    for o, v in zip(off, lw):
+        w[int(round((o - KERNEL_OFFSETS[0]) * 2))] = v
+    got = np.asarray(core_pair(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
+                                       D1, D2, OMEGA[1] - OMEGA[0], jnp.asarray(w))))
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
-    span = int(np.flatnonzero(mask)[-1] - np.flatnonzero(mask)[0] + 1)
-    _, grid, _ = batch_fit._pair_problems_grid(*args, span, FitOptions(), offsets, log_w)
-    res = batch_fit._GridResiduals(batch_fit._grid_shifts(offsets))
-    grid0 = jax.tree_util.tree_map(lambda t: t[0], grid)
-    np.testing.assert_allclose(np.asarray(res(theta, grid0)), ref, rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(np.asarray(res.value_and_jac(theta, grid0)[0]), ref, rtol=1e-9, atol=1e-9)

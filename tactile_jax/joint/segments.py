@@ -95,12 +95,14 @@ def _estimator(method: str, nperseg: int, n_samples: int, nw: float, n_tapers: i
         step = nperseg - nperseg // 2
         n_seg = (n_samples - nperseg) // step + 1
         tapers, dof = w[None, :], _welch_dof(w, step, n_seg)
-        nfft = nperseg
+        nfft, reach = nperseg, 3.0
     else:
         tapers = _dpss_tapers(n_samples, nw, n_tapers)
         step, n_seg, dof, nfft = 0, n_tapers, float(n_tapers), n_samples
-    offsets, weights = _spectral_kernel(tapers, nfft, 6.0)
-    kernel = np.interp(KERNEL_OFFSETS, offsets, weights)
+        reach = min(math.ceil(nw) + 1.0, float(KERNEL_OFFSETS[-1]))
+    # the support ``spectra.estimate_spectra`` gives its kernel: a spectra file written from it fits the same
+    offsets, weights = _spectral_kernel(tapers, nfft, reach)
+    kernel = np.interp(KERNEL_OFFSETS, offsets, weights, left=0.0, right=0.0)
     return tapers, step, n_seg, float(dof), _bin_factor(_bin_rho(tapers, nfft)), kernel / kernel.sum()
 
 

@@ -1,0 +1,169 @@
+"""The joint pipeline's pieces: fixed-shape spectra, the line integrals and their Jacobian, the solver."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tactile_jax.cross_pair import _solve_small
+from tactile_jax.joint import band as band_mod
+from tactile_jax.joint import lines
+from tactile_jax.joint.model import _to_half_bins
+from tactile_jax.joint.run import resolution_want
+from tactile_jax.joint.segments import KERNEL_OFFSETS, N_BINS, N_GROUPS, segments
+from tactile_jax.joint.solve import levenberg_marquardt
+from tactile_jax.r_curve import log_r_exact
+from tactile_jax.scene import Scene, simulate
+from tactile_jax.spectra import estimate_spectra
+
+D1, D2 = 0.265e-3, 0.925e-3
+DEPTHS = jnp.array([D1, D2])
+KNOTS = jnp.log(jnp.geomspace(50.0, 25.0 / (2 * D1), 12))
+LOG_PHI = -3.0 * jnp.log1p(jnp.exp(KNOTS) * 1e-3)
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return simulate(Scene(velocity=(0.016, 0.011), contact_radius=1.5e-3, duration=8.0, seed=3))
+
+
+@pytest.mark.parametrize("kw", [{}, {"nperseg": 256}, {"method": "multitaper"}])
+def test_grouped_segments_sum_to_the_spectra_estimate(recording, kw):
+    x = np.asarray(recording.signals, float)
+    seg = segments(x, recording.fs, **kw)
+    old = estimate_spectra(x, recording.fs, prewhiten=8, **kw)
+    n = seg.count.sum()
+    assert n == old.n_segments and seg.auto.shape == (N_GROUPS, 4, N_BINS)
+    m = min(old.psd.shape[-1], N_BINS)
+    for got, want in ((seg.auto.sum(0) / n, old.psd), (seg.csd.sum(0) / n, old.csd), (seg.xy.sum(0) / n, old.xy)):
+        want = np.asarray(want)[..., :m]
+        assert np.max(np.abs(got[..., :m] - want)) < 1e-9 * np.max(np.abs(want))
+    assert float(seg.dof) == pytest.approx(old.dof) and float(seg.bin_factor) == pytest.approx(old.bin_factor)
+    assert float(seg.kernel.sum()) == pytest.approx(1.0) and seg.kernel.size == KERNEL_OFFSETS.size
+    # more segments than groups: consecutive segments share a group, none is lost
+    assert np.all(seg.count[seg.count > 0] >= 1) and seg.count.sum() == old.n_segments
+
+
+def test_segments_refuse_what_a_record_cannot_meet():
+    from tactile_jax.errors import TactileInputError
+
+    with pytest.raises(TactileInputError, match="too short"):
+        segments(np.zeros((4, 20)), 1000.0)
+    with pytest.raises(TactileInputError, match="nperseg"):
+        segments(np.random.default_rng(0).standard_normal((4, 4000)), 1000.0, nperseg=8000)
+    with pytest.raises(TactileInputError, match="method"):
+        segments(np.zeros((4, 4000)), 1000.0, method="burg")
+
+
+def _matrix(p, omega, n_nodes=None, log_phi=LOG_PHI):
+    if n_nodes is None:
+        return lines.log_matrix(p, log_phi, omega, DEPTHS, KNOTS)
+    old = lines.N_NODES
+    lines.N_NODES = n_nodes
+    try:
+        return jax.jit(lambda q: lines.log_matrix(q, log_phi, omega, DEPTHS, KNOTS))(p)
+    finally:
+        lines.N_NODES = old
+
+
+def test_slip_along_x_through_a_large_contact_gives_the_exact_r_curve():
+    """vy = 0: the x pair's ratio S12 / S11 is the exact R of the mode alpha = omega / vx, the paper's Eq. 23
+    (exp(-alpha (d2 - d1)) for a large window); the y pair hears every ky of that mode's line at once, and its
+    ratio stays far above the x pair's at high omega."""
+    v, a = 0.02, 8e-3
+    omega = jnp.linspace(20.0, 400.0, 12)
+    m = np.asarray(jax.jit(lambda p: lines.log_matrix(p, LOG_PHI, omega, DEPTHS, KNOTS))(jnp.array([v, 1e-9, a])))
+    ratio_x = m[1] - m[0]
+    assert np.allclose(ratio_x, np.asarray(log_r_exact(omega / v, D1, D2, a)), atol=2e-3)
+    ratio_y = m[4] - m[3]
+    assert np.all(ratio_y < 0) and np.all(ratio_y[-4:] > ratio_x[-4:] + 1.0)
+
+
+def test_the_quadrature_is_converged_where_the_spectra_are_above_the_noise():
+    """The fit's 12 nodes per panel against 48, on oblique slips and small and large contacts, relative to
+    each entry's power with a white floor 50 dB below each pair's peak (what a fit sees)."""
+    for p in ([0.016, 0.011, 1.5e-3], [0.03, 0.002, 0.9e-3], [0.02, 0.02, 6e-3]):
+        omega = jnp.arange(62) * 0.15 * p[0] / (D2 - D1)
+        ref = np.asarray(_matrix(jnp.array(p), omega, 48))
+        got = np.asarray(_matrix(jnp.array(p), omega, lines.N_NODES))
+        diag = ref[[0, 2, 3, 5]]
+        floor = np.repeat(diag[[0, 2]].max(axis=1, keepdims=True), 2, axis=0) - np.log(1e5)
+        total = np.logaddexp(diag, floor)
+        scale = np.array([0.5 * (total[i] + total[j]) for i, j in lines.ENTRIES])
+        err = np.abs(np.exp(got - ref) - 1.0) * np.exp(ref - scale)
+        assert err.max() < 2e-2 and np.median(err) < 1e-4, p
+
+
+def test_the_custom_jacobian_matches_finite_differences():
+    omega = jnp.linspace(5.0, 300.0, 9)
+    q = jnp.concatenate([jnp.array([0.016, 0.011, 1.5e-3]), LOG_PHI])
+    f = jax.jit(lambda q: lines.log_matrix(q[:3], q[3:], omega, DEPTHS, KNOTS))
+    jac = np.asarray(jax.jit(jax.jacfwd(lambda q: lines.log_matrix(q[:3], q[3:], omega, DEPTHS, KNOTS)))(q))
+    # central differences in log of the physical parameters and in the knots
+    step = np.concatenate([1e-5 * np.asarray(q[:3]), np.full(12, 1e-5)])
+    for i in (0, 1, 2, 5, 9):
+        dq = jnp.zeros_like(q).at[i].set(step[i])
+        fd = (np.asarray(f(q + dq)) - np.asarray(f(q - dq))) / (2 * step[i])
+        used = np.abs(fd) > 1e-8
+        assert np.allclose(jac[..., i][used], fd[used], rtol=2e-4, atol=1e-6), i
+
+
+def test_half_bins_are_cubic_interpolation():
+    x = np.arange(-7.0, 20.0)
+    f = 0.3 * x ** 3 - x ** 2 + 2.0
+    half = np.asarray(_to_half_bins(jnp.asarray(f)))
+    grid = np.arange(-6.0, 18.5, 0.5)
+    assert half.shape == grid.shape
+    assert np.allclose(half, 0.3 * grid ** 3 - grid ** 2 + 2.0, atol=1e-9)
+
+
+def test_small_hermitian_solves_match_lapack():
+    rng = np.random.default_rng(1)
+    for n in (2, 3):
+        z = rng.standard_normal((5, n, n)) + 1j * rng.standard_normal((5, n, n))
+        a = z @ np.conj(np.swapaxes(z, -1, -2)) + n * np.eye(n)
+        b = rng.standard_normal((5, n)) + 1j * rng.standard_normal((5, n))
+        assert np.allclose(np.asarray(_solve_small(jnp.asarray(a), jnp.asarray(b))), np.linalg.solve(a, b[..., None])[..., 0])
+
+
+def _toy(theta, x):
+    """A two-basin problem: y = sin(theta0 x) + theta1; the aux output is the model."""
+    model = jnp.sin(theta[0] * x) + theta[1]
+    return (model - (jnp.sin(3.0 * x) + 0.5)) / 0.01, model
+
+
+def test_the_solver_keeps_the_best_start_and_holds_the_first_stage_mask():
+    x = jnp.linspace(0.0, 3.0, 60)
+    starts = jnp.array([[1.0, 0.0], [2.8, 0.0], [5.5, 0.0]])        # only the second is in the right basin
+    free = jnp.array([True, True])
+    theta, r, jac, model = levenberg_marquardt(_toy, starts, x, free, jnp.array([False, True]), n_start=8, n_first=2,
+                                               n_final=10)
+    assert np.allclose(np.asarray(theta), [3.0, 0.5], atol=1e-6)
+    assert np.asarray(jac).shape == (60, 2) and np.allclose(np.asarray(model), np.sin(3.0 * x) + 0.5, atol=1e-6)
+    # from a given start alone: the final iterations only
+    theta, *_ = levenberg_marquardt(_toy, jnp.array([[2.9, 0.4]] * 3), x, free, free, n_start=8, n_first=2,
+                                    n_final=10, skip_starts=True)
+    assert np.allclose(np.asarray(theta), [3.0, 0.5], atol=1e-6)
+    # the first stage moves only the ``first`` parameters: with no final iterations theta0 stays at its start
+    theta, *_ = levenberg_marquardt(_toy, jnp.array([[3.0, 0.0]]), x, free, jnp.array([False, True]), n_start=4,
+                                    n_first=4, n_final=0)
+    assert float(theta[0]) == 3.0 and float(theta[1]) == pytest.approx(0.5, abs=1e-6)
+
+
+def test_resolution_rules():
+    fs, depths, n = 1000.0, np.array([D1, D2]), 16000
+    # a slow slip's ratio falls fast per bin: longer segments, capped at 6 half-overlapping ones
+    assert resolution_want([0.01, np.nan], [20, 0], fs, depths, n, 1024) == 4096
+    assert resolution_want([0.05, 0.01], [40, 10], fs, depths, n, 1024) == 1024
+    # a band of 3 bins with no slope is stretched to 8
+    assert resolution_want([np.nan, np.nan], [3, 1], fs, depths, n, 1024) == 4096
+    assert resolution_want([np.nan, np.nan], [0, 0], fs, depths, n, 1024) == 1024
+
+
+def test_stray_bins_are_dropped_and_harmonics_kept():
+    band = np.zeros((2, 120), bool)
+    band[0, 5:12] = True
+    band[0, 20:23] = True                # harmonics, within 3x: kept
+    band[0, 100] = True                  # a lone coherent bin far above (beyond 3 x 22 + 4): dropped
+    out = np.asarray(band_mod._main_band(jnp.asarray(band)))
+    assert out[0, 5:12].all() and out[0, 20:23].all() and not out[0, 100]
