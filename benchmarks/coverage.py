@@ -1,4 +1,4 @@
-"""Coverage of the joint fit's error bars on simulated scenes (issue #3).
+"""Coverage of the joint fit's error bars on simulated scenes.
 
 Seeded scenes across speeds (1-8 cm/s), slip directions (0-90 deg), contact
 radii (0.8-2.5 mm, and 5-8 mm large contacts) and SNR 30-60 dB, each 16 s at

@@ -1,8 +1,9 @@
 """tactile_jax: slip velocity, contact radius and texture spectra from a vertical-sampling tactile sensor.
 
 Physics (pure JAX): ``decay``, ``window``, ``r_curve``, ``probe``.
-Measurement: ``spectra``, ``prewhiten``. Estimation: ``closed_form``, ``lsq``, ``pair_fit``.
-Scenes and files: ``simulate``, ``texture``, ``recording``, ``io``. Edges: ``plotting``, ``cli``, ``demo``.
+Measurement: ``spectra``, ``prewhiten``. Estimation: ``closed_form``, ``pair_fit`` (one pair alone) and
+``joint`` (both pairs: the compiled pipeline of ``fit`` and ``batch``), ``posterior`` (emcee).
+Scenes and files: ``scene``, ``texture``, ``recording``, ``io``. Edges: ``plotting``, ``report``, ``cli``, ``demo``.
 The library never switches on float64 itself: call
 ``jax.config.update("jax_enable_x64", True)`` first (the CLI does).
 """

@@ -206,7 +206,7 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
               help="Results file: .json (list of objects), .csv or .parquet (needs pyarrow); one row per record.")
 @click.option("--mcmc", is_flag=True, help="Sample the posterior with emcee around each fit (errors beyond Laplace).")
 @click.option("--walkers", type=int, default=32, show_default=True, help="emcee walkers (at least 2 x free parameters).")
-@click.option("--steps", type=int, default=2000, show_default=True, help="emcee steps per walker, burn-in (1/4) included.")
+@click.option("--steps", type=int, default=500, show_default=True, help="emcee steps per walker, burn-in (1/4) included.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the MCMC.")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), default=None,
               help="Folder for Fig. 7-style fit figures (and corner plots with --mcmc).")
@@ -382,7 +382,7 @@ def _attach_mcmc(result, row, out_path, settings):
         row["mcmc_warnings"] = f"not run: {why}"
         return
     try:
-        post = run_emcee(result.problem, progress=False, **settings)
+        post = run_emcee(result.problem, progress=sys.stderr.isatty(), **settings)
     except ValueError as err:
         row["mcmc_warnings"] = f"not run: {err}"
         click.echo(f"warning: {result.file} [{result.index}]: MCMC not run: {err}", err=True)
@@ -418,7 +418,7 @@ def _fit_figures(result, plot_dir, quiet):
             click.echo(f"figure: {p}", err=True)
 
 
-from .batch_cli import batch as _batch  # noqa: E402  (issue 7)
+from .batch_cli import batch as _batch  # noqa: E402
 main.add_command(_batch)
 
 

@@ -452,7 +452,7 @@ def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius
         _, s, margin = chosen
     model = model_select.model_name(s.free, options.velocity is not None)
     res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
-                              window_weak=window_weak, solver=options.solver)
+                              window_weak=window_weak)
     res.model_margin = margin
     _profiles(res, s, options, refit)
     if note and note.startswith("model "):
@@ -502,7 +502,7 @@ def _select(refit: _Refitter, s: Summary, options: FitOptions):
 
 
 def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, model: str = "joint",
-                        window_weak: bool = False, solver: str = "levenberg-marquardt", file=None,
+                        window_weak: bool = False, solver: str = "levenberg-marquardt, 3 starts", file=None,
                         index: int = 0) -> FitResult:
     """A ``FitResult`` from one record's ``joint.core.Summary`` (numpy): the values, errors, status and
     message that ``fit`` and ``batch`` both report."""
@@ -512,6 +512,7 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     res.status = status
     res.converged = bool(s.converged)
     res.n_bins = int(s.n_bins)
+    res.cross_pairs = int(np.asarray(s.data.mask_xy).any(axis=-1).sum())
     loc = s.located
     for p, attr in ((0, "k0x"), (1, "k0y")):
         k0 = float(loc.k0[p])

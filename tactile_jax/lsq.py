@@ -50,7 +50,7 @@ class LsqResult(NamedTuple):
     correlation matrix (large: a combination of parameters the data cannot
     tell apart). decrement: that predicted chi2 decrease, g^T (J^T J)^-1 g.
     jac: (R, P) Jacobian of ``residuals(theta, args)`` at ``theta`` (priors' rows included, all columns),
-    for what needs it afterwards at the same data (``jackknife.linear_shifts``); None where not kept.
+    for what needs it afterwards at the same data; None where not kept.
     step_sigma: (P,) the full Gauss-Newton step still to go, each parameter in units of its own
     sd from (J^T J)^-1 (0 for fixed ones): which parameters a stop at ``max_steps`` left moving
     (below ``STEP_TOL``: settled; its decrement can stay large while only ill-determined ones move).

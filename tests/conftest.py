@@ -17,6 +17,7 @@ import tempfile  # noqa: E402
 import uuid  # noqa: E402
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 # one compilation cache for the run, shared by its worker processes, in the temporary directory (per
@@ -43,3 +44,16 @@ def pytest_sessionfinish(session):
         run = getattr(config.option, "testrunuid", None)       # None: xdist not installed
         for cache in {os.path.dirname(_CACHE_DIR), os.path.join(tempfile.gettempdir(), f"tactile_jax_tests_{run}")}:
             shutil.rmtree(cache, ignore_errors=True)
+
+
+#: modules that run the joint pipeline end to end: one worker runs them all, so that its one compiled
+#: program serves every one of them (a second worker would compile it again); the others run beside it
+JOINT_MODULES = {"test_fit.py", "test_batch.py", "test_fit_cli.py", "test_model_select.py", "test_cli.py",
+                 "test_examples.py", "test_stability.py", "test_reproduce.py"}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        name = item.path.name
+        item.add_marker(pytest.mark.xdist_group("joint" if name in JOINT_MODULES else name))

@@ -52,6 +52,7 @@ def bias_rows():
     return cr.fit_bias([2.2e-3], [0.047], seeds=(0,), curves=("exact", "rough"))
 
 
+@pytest.mark.slow
 def test_fit_bias_exact_is_unbiased_and_rough_is_not(bias_rows):
     exact, rough = bias_rows
     assert (exact.curve, rough.curve) == ("exact", "rough")
@@ -76,6 +77,7 @@ def test_synthetic_ratio_band_and_errors():
     assert 0.6 < np.std(z) < 1.5
 
 
+@pytest.mark.slow
 def test_hertz_pair_residuals_see_the_hertz_truth():
     """The Hertz curve variant of the pair fit: unit-size residuals at the truth, large ones 10 % off."""
     from tactile_jax.pair_fit import _residuals, _residuals_hertz
@@ -93,6 +95,7 @@ def test_hertz_pair_residuals_see_the_hertz_truth():
         fit_pair(d.omega, d.log_ratio, d.err, d.mask, D1, D2, curve="cubic")
 
 
+@pytest.mark.slow
 def test_compare_r_cli_quick(tmp_path, monkeypatch, bias_rows):
     from tactile_jax.cli import main
 

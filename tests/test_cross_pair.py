@@ -13,6 +13,7 @@ def _channels(rng, n):
     return np.stack([s + 0.5 * e[0], 0.6 * s + 0.4 * e[1], 0.8 * s + 0.5 * e[2], 0.3 * s + 0.2 * e[3] + 0.4 * e[2]])
 
 
+@pytest.mark.slow
 def test_chain_is_the_least_squares_regression_and_its_weights_whiten_it():
     rng = np.random.default_rng(3)
     spec = estimate_spectra(_channels(rng, 2 ** 15), 1000.0)

@@ -19,11 +19,13 @@ def test_every_example_has_a_test():
     assert {p.name for p in EXAMPLES.glob("*.py")} <= tested
 
 
+@pytest.mark.slow
 def test_simulate_and_measure(tmp_path):
     fit = _main("simulate_and_measure.py")(duration=6.0, out=str(tmp_path / "scene.h5"))
     assert fit.converged and fit.speed == pytest.approx(0.03, rel=0.05)
 
 
+@pytest.mark.slow
 def test_fit_spectra_with_errors(tmp_path):
     joint, pairs, truth = _main("fit_spectra_with_errors.py")(duration=6.0, out=str(tmp_path / "spectra.npz"))
     assert (tmp_path / "spectra.npz").exists()
@@ -36,6 +38,7 @@ def test_fit_spectra_with_errors(tmp_path):
     assert pairs.vx == pytest.approx(abs(truth["vx"]), rel=0.15)
 
 
+@pytest.mark.slow
 def test_rough_vs_exact(tmp_path):
     out = tmp_path / "rough.png"
     r = _main("rough_vs_exact.py")(duration=8.0, radius=2e-3, out=str(out))
@@ -47,6 +50,7 @@ def test_rough_vs_exact(tmp_path):
     assert abs(r["rough"][0] - v) > abs(r["exact"][0] - v)
 
 
+@pytest.mark.slow
 def test_posterior_corner(tmp_path):
     res, paths = _main("posterior_corner.py")(duration=6.0, steps=30, walkers=8, out_dir=str(tmp_path))
     post = res.posterior.summary()
@@ -57,6 +61,7 @@ def test_posterior_corner(tmp_path):
     assert abs(post["vx"]["mean"] - vx) < max(5 * post["vx"]["sd"], 0.1 * vx)
 
 
+@pytest.mark.slow
 def test_batch_folder(tmp_path):
     pytest.importorskip("tactile_jax.batch", reason="tactile_jax.batch not available")
     _, rows = _main("batch_folder.py")(files=2, duration=6.0, folder=str(tmp_path / "data"),

@@ -99,7 +99,7 @@ def test_minor_component_gets_a_profile_interval():
 
 
 def test_known_velocity_is_held_fixed():
-    scene = _scene(0.03, 0.0, 2e-3, seed=2)
+    scene = _scene(0.03, 0.0, 2e-3, seed=2, duration=8.0)
     res = fit_recording(simulate(scene), FitOptions(velocity=(0.03, 0.0)))
     assert res.vx == 0.03 and res.vx_err is None and res.vy == 0.0 and res.vy_err is None
     assert res.status == "ok" and abs(res.a - scene.a) < 4 * res.a_err

@@ -33,7 +33,7 @@ def mcmc_run(scene_file, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("fit")
     out = out_dir / "results.json"
     res = CliRunner().invoke(main, ["fit", str(scene_file), "--out", str(out), "--plot", str(out_dir / "figs"),
-                                    "--mcmc", "--steps", "100", "--walkers", "40", *NO_CHAIN])
+                                    "--mcmc", "--steps", "60", "--walkers", "36", *NO_CHAIN])
     return res, out, out_dir
 
 
@@ -58,6 +58,7 @@ def test_results_round_trip_json_and_csv(tmp_path):
         write_results(tmp_path / "r.txt", rows)
 
 
+@pytest.mark.slow
 def test_fit_reports_and_recovers_vx(mcmc_run):
     res, out, _ = mcmc_run
     assert res.exit_code == 0, res.output
@@ -71,12 +72,14 @@ def test_fit_reports_and_recovers_vx(mcmc_run):
     assert row["vx_err"] > 0 and row["converged"] is True
 
 
+@pytest.mark.slow
 def test_fit_plot_writes_png(mcmc_run):
     _, _, out_dir = mcmc_run
     assert (out_dir / "figs" / "fit_scene_0.png").stat().st_size > 10_000
     assert (out_dir / "figs" / "corner_scene_0.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_fit_mcmc_adds_fields_and_posterior_file(mcmc_run):
     from tactile_jax.posterior import load_posterior
 
@@ -85,11 +88,11 @@ def test_fit_mcmc_adds_fields_and_posterior_file(mcmc_run):
     for key in ("mcmc_acceptance", "mcmc_ess", "mcmc_tau_max", "mcmc_warnings", "vx_post_mean", "vx_post_sd",
                 "a_post_mean", "posterior_file"):
         assert key in row, key
-    assert "autocorrelation times" in row["mcmc_warnings"]                     # 100 steps is a short chain
+    assert "autocorrelation times" in row["mcmc_warnings"]                     # 60 steps is a short chain
     assert row["vx_post_mean"] == pytest.approx(VX, rel=0.10)
     post = out_dir / "results_scene_0_posterior.h5"
     assert post.exists() and row["posterior_file"] == str(post)
-    assert load_posterior(post)["posterior"]["vx"].shape[0] == 40
+    assert load_posterior(post)["posterior"]["vx"].shape[0] == 36
 
 
 def test_missing_file_alone_exits_2_with_a_row(tmp_path):
@@ -118,6 +121,7 @@ def test_good_and_garbage_files_go_on(scene_file, tmp_path):
     assert all(set(RESULT_FIELDS) <= set(r) for r in rows)
 
 
+@pytest.mark.slow
 def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     """The spectra file carries the estimator (kernel, bin factor, prewhitening filter): the same fit as the
     recording's without the cross-pair chain (a spectra file has no x-y cross-spectra)."""

@@ -55,13 +55,13 @@ def test_segments_refuse_what_a_record_cannot_meet():
         segments(np.zeros((4, 4000)), 1000.0, method="burg")
 
 
-def _matrix(p, omega, n_nodes=None, log_phi=LOG_PHI):
-    if n_nodes is None:
-        return lines.log_matrix(p, log_phi, omega, DEPTHS, KNOTS)
+def _matrix_program(n_nodes):
+    """log_matrix at ``n_nodes`` per panel, compiled once for every (p, omega)."""
     old = lines.N_NODES
     lines.N_NODES = n_nodes
     try:
-        return jax.jit(lambda q: lines.log_matrix(q, log_phi, omega, DEPTHS, KNOTS))(p)
+        f = jax.jit(lambda p, omega: lines.log_matrix(p, LOG_PHI, omega, DEPTHS, KNOTS))
+        return f.lower(jnp.ones(3), jnp.ones(62)).compile()      # traced here, at n_nodes
     finally:
         lines.N_NODES = old
 
@@ -79,13 +79,15 @@ def test_slip_along_x_through_a_large_contact_gives_the_exact_r_curve():
     assert np.all(ratio_y < 0) and np.all(ratio_y[-4:] > ratio_x[-4:] + 1.0)
 
 
+@pytest.mark.slow
 def test_the_quadrature_is_converged_where_the_spectra_are_above_the_noise():
     """The fit's 12 nodes per panel against 48, on oblique slips and small and large contacts, relative to
     each entry's power with a white floor 50 dB below each pair's peak (what a fit sees)."""
+    fine, used = _matrix_program(48), _matrix_program(lines.N_NODES)
     for p in ([0.016, 0.011, 1.5e-3], [0.03, 0.002, 0.9e-3], [0.02, 0.02, 6e-3]):
         omega = jnp.arange(62) * 0.15 * p[0] / (D2 - D1)
-        ref = np.asarray(_matrix(jnp.array(p), omega, 48))
-        got = np.asarray(_matrix(jnp.array(p), omega, lines.N_NODES))
+        ref = np.asarray(fine(jnp.array(p), omega))
+        got = np.asarray(used(jnp.array(p), omega))
         diag = ref[[0, 2, 3, 5]]
         floor = np.repeat(diag[[0, 2]].max(axis=1, keepdims=True), 2, axis=0) - np.log(1e5)
         total = np.logaddexp(diag, floor)

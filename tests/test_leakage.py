@@ -55,6 +55,7 @@ def filtered():
     return _filtered_pair(8)
 
 
+@pytest.mark.slow
 def test_centroid_term_explains_the_resolution_error_of_a_filter(filtered):
     spec, omega, y, err, mask = filtered
     offsets, log_w = kernel_log_weights(omega, spec.kernel, np.asarray(whitened_psd(spec)[0]))
@@ -69,6 +70,7 @@ def test_centroid_term_explains_the_resolution_error_of_a_filter(filtered):
     assert rms(with_centroid) < 0.5 * rms(average)
 
 
+@pytest.mark.slow
 def test_fit_with_leakage_beats_the_window_average_at_50_db():
     # 6 seeded realisations at 50 dB (8 gave RMS a 3.98 % -> 1.64 %, |v| 0.26 % -> 0.14 %)
     errs = []

@@ -78,6 +78,7 @@ def test_auto_keeps_the_window_of_a_small_contact_and_reports_the_margin(small_c
     assert row["vx"] == 0.047 and row["vx_err"] is None          # fixed: its value, no error
 
 
+@pytest.mark.slow
 def test_hertz_model_fits_the_slip_axis_pair_only():
     """``model="hertz"`` on a Hertz-window recording: the x pair's Hertz curve; vy is not claimed."""
     from tactile_jax.scene import Scene, simulate

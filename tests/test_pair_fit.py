@@ -40,6 +40,7 @@ def exact_ratio():
     return y, np.full(OMEGA.size, 0.01), mask
 
 
+@pytest.mark.slow
 def test_weighted_window_recovers_the_truth_where_the_flat_one_is_biased(exact_ratio):
     y, err, mask = exact_ratio
     weighted = fit_pair(OMEGA, y, err, mask, D1, D2, kernel=KERNEL, spectrum=_spectrum(OMEGA), speed0=0.02, a0=3e-3)

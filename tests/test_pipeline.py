@@ -35,6 +35,7 @@ def test_measured_ratio_follows_exact_r_curve(a):
     assert abs(np.mean(pull[m])) < 1.0 and np.mean(pull[m] ** 2) < 4.0
 
 
+@pytest.mark.slow
 def test_exact_r_fit_recovers_speed_and_radius():
     args, bf = _x_pair(paper_fig5_scene(seed=1))
     fit = fit_pair(*args, bin_factor=bf)
@@ -43,6 +44,7 @@ def test_exact_r_fit_recovers_speed_and_radius():
     assert fit.a == pytest.approx(3e-3, rel=0.1) and abs(fit.a - 3e-3) < 3 * fit.a_err
 
 
+@pytest.mark.slow
 def test_eq6_slope_holds_for_a_large_contact_and_is_flagged_for_a_small_one():
     args, bf = _x_pair(dataclasses.replace(paper_fig5_scene(seed=2), contact_radius=10e-3))
     big = slope_speed(*args, bin_factor=bf)
@@ -53,6 +55,7 @@ def test_eq6_slope_holds_for_a_large_contact_and_is_flagged_for_a_small_one():
     assert float(small.speed) > 0.023 * 1.03 and float(small.redchi) > 3.0
 
 
+@pytest.mark.slow
 def test_jaxopt_solver_agrees_with_optimistix():
     args, bf = _x_pair(paper_fig5_scene(seed=1))
     a = fit_pair(*args, bin_factor=bf)

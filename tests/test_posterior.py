@@ -49,10 +49,17 @@ def result(problem):
 
 
 @pytest.fixture(scope="module")
+def short(short_runs):
+    """A short chain for what does not need a converged one (files, layouts, plots)."""
+    return short_runs[0]
+
+
+@pytest.fixture(scope="module")
 def short_runs(problem):
     return run_emcee(problem, n_steps=100, seed=7), run_emcee(problem, n_steps=100, seed=7)
 
 
+@pytest.mark.slow
 def test_posterior_matches_laplace(problem, result):
     sd_laplace = np.sqrt(np.diag(problem.cov))
     summ = result.summary()
@@ -63,6 +70,7 @@ def test_posterior_matches_laplace(problem, result):
         assert s["q2.5"] < s["q16"] < s["median"] < s["q84"] < s["q97.5"]
 
 
+@pytest.mark.slow
 def test_diagnostics(result):
     n_draws = 3000 - 3000 // 4
     assert result.theta.shape == (32, n_draws, 2)
@@ -75,7 +83,8 @@ def test_diagnostics(result):
     assert result.warnings == ()
 
 
-def test_fixed_parameter_stays_fixed(result):
+def test_fixed_parameter_stays_fixed(short):
+    result = short
     assert np.all(result.samples["q"] == Q_FIXED)
 
 
@@ -100,6 +109,7 @@ def test_log_prob_bounds_and_nonfinite(problem):
     assert bad(np.array([[m, c]]))[0] == -np.inf
 
 
+@pytest.mark.slow
 def test_stretch_widens_one_parameter_and_keeps_the_correlation(problem, result):
     """fit's per-parameter error scales: a stretch of 2 on m doubles its posterior sd, leaves c's and the
     m-c correlation as they were, and its log-prob at fit + 2 delta is the plain one at fit + delta."""
@@ -126,7 +136,8 @@ def test_too_few_walkers(problem):
         run_emcee(problem, n_walkers=3, n_steps=10)
 
 
-def test_save_load_round_trip(tmp_path, result):
+def test_save_load_round_trip(tmp_path, short):
+    result = short
     path = save_posterior(tmp_path / "post.nc", result, attrs={"run": "toy", "truth": {"m": 1.3}})
     assert path.exists() and not list(tmp_path.glob("*.tmp"))
     groups = load_posterior(path)
@@ -153,7 +164,8 @@ def test_save_load_round_trip(tmp_path, result):
     assert dict(idata["posterior"].sizes) == {"chain": 32, "draw": result.theta.shape[1]}
 
 
-def test_to_inference_data(result):
+def test_to_inference_data(short):
+    result = short
     az = pytest.importorskip("arviz")
     idata = to_inference_data(result, observed={"y": np.arange(3.0)}, attrs={"run": "toy"})
     np.testing.assert_array_equal(np.asarray(idata["sample_stats"]["lp"]), result.log_prob)
@@ -161,7 +173,8 @@ def test_to_inference_data(result):
     del az
 
 
-def test_to_inference_data_without_arviz(result, monkeypatch):
+def test_to_inference_data_without_arviz(short, monkeypatch):
+    result = short
     import builtins
 
     real_import = builtins.__import__
@@ -176,7 +189,8 @@ def test_to_inference_data_without_arviz(result, monkeypatch):
         to_inference_data(result)
 
 
-def test_corner_plot(tmp_path, result):
+def test_corner_plot(tmp_path, short):
+    result = short
     path = corner_plot(result.samples, tmp_path / "corner.png", names=["m", "c", "q"],
                        truths={"m": 1.3, "c": -0.4}, labels={"m": "m (m/s)"}, title="toy posterior")
     assert path.exists() and path.stat().st_size > 5000

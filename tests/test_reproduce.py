@@ -53,6 +53,7 @@ def test_bad_recipe_names_file_and_problem(rp, tmp_path):
         rp.load_recipe(bad)
 
 
+@pytest.mark.slow
 def test_line_fit_recovers_radius_of_gaussian_contact(rp):
     """A wire net under the model's own window: one line at 94 Hz gives a (speed known)."""
     recipe = rp.load_recipe(FITS / "paper_fig7.toml")
@@ -67,6 +68,7 @@ def test_line_fit_recovers_radius_of_gaussian_contact(rp):
     assert abs(fit.a - 1.2e-3) < 4 * fit.a_err + 1e-5
 
 
+@pytest.mark.slow
 def test_quick_fig4_writes_figure_and_table(rp, tmp_path):
     rows = rp.main(["--quick", "--only", "fig4", "--out", str(tmp_path)])
     assert (tmp_path / "paper_fig4.png").stat().st_size > 10_000
@@ -85,6 +87,7 @@ def test_fig5_recipe_is_the_demo_scene(rp):
     assert scene == paper_fig5_scene(seed=scene.seed, duration=scene.duration)
 
 
+@pytest.mark.slow
 def test_radius_not_determined_when_ratio_needs_no_window(rp):
     """A line at or below the no-window ratio exp(-alpha eps) says nothing about a: NaN, not a huge number."""
     d1, d2, v = 0.265e-3, 0.925e-3, 0.047

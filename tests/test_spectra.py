@@ -285,6 +285,7 @@ def test_too_short_and_bad_settings_raise():
     assert info.value.code == "bad_fs"
 
 
+@pytest.mark.slow
 def test_burg_recovers_ar2_and_prewhitening_keeps_ratio():
     from tactile_jax.prewhiten import burg_ar
 

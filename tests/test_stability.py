@@ -144,7 +144,7 @@ SCENES = {
 
 
 #: cases whose fit stops early (no_band): cheap, always run
-QUICK = ("slow_near_dc", "snr_0db", "deep_drowned")
+QUICK = ("snr_0db", "deep_drowned")
 
 
 #: known confident wrong answers, kept visible (strict: a fix makes the test fail until this is removed)
@@ -245,6 +245,7 @@ def test_spectra_with_exact_zeros_joint(base_rec):
     assert_honest(fit_spectra(data, FitOptions()), _truth(BASE))
 
 
+@pytest.mark.slow
 def test_ratio_spectra_with_exact_zeros(base_rec):
     """Ratio-only spectra with exact zeros (log -inf) and an infinite error: skipped by the pair fits."""
     spec, psd, csd = _zeroed_spectra(base_rec)
@@ -258,6 +259,7 @@ def test_ratio_spectra_with_exact_zeros(base_rec):
     assert abs(res.vx - BASE.velocity[0]) <= N_SIGMA * res.vx_err, (res.vx, res.vx_err)
 
 
+@pytest.mark.slow
 def test_extreme_alpha_d_values_and_gradients():
     """alpha d from 1e-9 to 1e5, a from 1 um to 1 m: log R and the pair model's Jacobian stay finite."""
     d1, d2 = 0.265e-3, 0.925e-3
@@ -287,6 +289,7 @@ def test_recording_of_zeros_is_a_status_not_nan():
 
 
 @pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.slow
 def test_pair_fit_with_the_window_term_on_hard_scenes(name):
     """The fast path on the same scenes (slip along x, so its model holds): |v| within 5 sigma, a within
     5 sigma or undetermined (a_err > a / 2, which callers withhold); too few bins is left to the caller.
