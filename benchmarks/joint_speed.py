@@ -24,6 +24,13 @@ in this process (compile included); warm = median of ``--repeats`` calls. Every
 phase counts the XLA compilations (``/jax/core/compile/backend_compile_duration``
 events of ``jax.monitoring``) and their seconds; a warm phase should show none.
 
+Each stage's call runs under a watchdog: a call that does not return within
+``--hang-timeout`` seconds (``--compile-timeout`` for one that compiles) ends its
+process, the stage is reported as hung, and a fresh process goes on with the next
+(jaxlib 0.10.2 on a 2-core CPU has deadlocked in the separately jitted, vmapped
+``finish``; see ``run_stages``). The stages run in child processes without a
+persistent compilation cache.
+
 Then the persistent compilation cache: ``tactile-jax fit FILE --out X.json
 --quiet`` in a subprocess with a fresh cache (``TACTILE_JAX_CACHE=<tmp>/jax``),
 again on another same-shape file with that (now warm) cache, and once with 4 files.
@@ -153,28 +160,20 @@ def _recording(x, j):
                      curvature_radius=PAPER_SENSOR.curvature_radius, source=f"joint_speed record {j}")
 
 
-# --------------------------------------------------------------------------- timing
+# --------------------------------------------------------------------------- timing (a child process)
 
 
-def _timed(fn, *args):
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    return time.perf_counter() - t0, out
+@contextlib.contextmanager
+def _watch(seconds: float):
+    """End the process (traceback on stderr) if the block runs longer than ``seconds``: a call that never
+    returns (an XLA CPU deadlock, see ``run_stages``) must not stall the benchmark."""
+    import faulthandler
 
-
-def _measure(comp: Compiles, key: str, fn, args, repeats: int):
-    """Cold (first) and warm (median of ``repeats``) seconds of ``fn(*args)``, with the phases' compilations."""
-    with comp.phase(key + "/cold"):
-        cold, out = _timed(fn, *args)
-    warm = []
-    with comp.phase(key + "/warm"):
-        for _ in range(repeats):
-            warm.append(_timed(fn, *args)[0])
-    entry = {"cold_s": cold, "warm_s": statistics.median(warm), "warm_all_s": warm,
-             "compiles_cold": comp.of(key + "/cold"), "compiles_warm": comp.of(key + "/warm")}
-    print(f"  {key:24s} cold {cold:8.3f} s  warm {entry['warm_s']:8.4f} s  compiles {entry['compiles_cold']['n']}"
-          f" ({entry['compiles_cold']['compile_s']:.1f} s) / {entry['compiles_warm']['n']}", file=sys.stderr)
-    return entry, out
+    faulthandler.dump_traceback_later(seconds, exit=True)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
 
 
 def _stage_programs():
@@ -209,70 +208,205 @@ def _row(s):
     return result_from_summary(s, model=model_name(s.free, False)).to_record()
 
 
-def one_and_chunk(args, clean, comp: Compiles) -> dict:
-    """Every stage for one record, then for a chunk, in this process (compiles counted per phase)."""
-    from tactile_jax.fit import FitOptions, fit_recording
-    from tactile_jax.joint import run
-    from tactile_jax.joint.core import Settings, no_start
-    from tactile_jax.sensor import PAPER_SENSOR
+#: the measurements in order: (target, stage)
+ORDER = [(t, st) for t in ("one", "chunk") for st in STAGES if not (t == "chunk" and st == "fit_recording")]
 
-    depths = (PAPER_SENSOR.d1, PAPER_SENSOR.d2)
-    settings = Settings()
-    prepare, solve, finish = _stage_programs()
-    out = {"one": {}, "chunk": {}}
-    r = args.repeats
 
-    # ---- one record (record 0: scene 0)
-    x0 = _draw(clean, 0)
-    out["one"]["spectra"], rec = _measure(comp, "one/spectra", lambda: run.record(x0, FS, depths, settings=settings),
-                                          (), r)
-    rec_j, start_j = run._as_jnp(rec), run._as_jnp(no_start())
-    j_prep, j_solve, j_finish = jax.jit(prepare), jax.jit(solve), jax.jit(finish)
-    out["one"]["set-up"], prep = _measure(comp, "one/set-up", j_prep, (rec_j, settings), r)
-    out["one"]["solve"], (sol, free) = _measure(comp, "one/solve", j_solve, (prep, start_j), r)
-    out["one"]["finish"], staged = _measure(comp, "one/finish", j_finish, (rec_j, prep, free, sol), r)
-    out["one"]["core"], s = _measure(comp, "one/core", run.fit_one, (rec, settings), r)
-    out["one"]["staged_equals_core"] = bool(np.allclose(np.asarray(staged.theta), s.theta, rtol=1e-8, atol=1e-10))
-    # fit_recording: count the core calls its layers make (refits go through run.fit_one)
-    calls = collections.Counter()
-    orig = run.fit_one
+class StageRunner:
+    """Measures the stages in ``ORDER`` in this process, skipping those in ``done``; every stage's inputs are
+    computed (untimed) where an earlier stage that would give them was skipped. The results so far go to
+    ``partial`` (JSON) before and after each measurement, so a process ended by ``_watch`` leaves them."""
 
-    def counting(*a, **kw):
-        calls["n"] += 1
-        return orig(*a, **kw)
+    def __init__(self, args, clean, comp: Compiles, partial: Path):
+        from tactile_jax.joint import run
+        from tactile_jax.joint.core import Settings, no_start
+        from tactile_jax.sensor import PAPER_SENSOR
 
-    run.fit_one = counting
-    try:
-        recording = _recording(x0, 0)
-        calls.clear()
-        out["one"]["fit_recording"], res = _measure(comp, "one/fit_recording", fit_recording,
-                                                    (recording, FitOptions()), r)
-        out["one"]["fit_recording"]["core_calls"] = calls["n"] // (r + 1)
-    finally:
-        run.fit_one = orig
-    out["one"]["fit_recording"]["status"] = res.status
-    out["one"]["fit_recording"]["message"] = res.message
-    out["one"]["row"], row = _measure(comp, "one/row", _row, (s,), r)
-    out["one"]["status"] = row["status"]
+        self.args, self.clean, self.comp, self.partial = args, clean, comp, partial
+        self.run, self.settings, self.no_start = run, Settings(), no_start
+        self.depths = (PAPER_SENSOR.d1, PAPER_SENSOR.d2)
+        self.state = json.loads(partial.read_text()) if partial.exists() else {"one": {}, "chunk": {}, "hung": []}
+        self.memo = {}
+        self.programs = dict(zip(("prepare", "solve", "finish"), _stage_programs()))
 
-    # ---- a chunk: records 1..chunk (scenes 1, 2, 3, 0, ...), vmapped
-    n = args.chunk
-    xs = [_draw(clean, j) for j in range(1, n + 1)]
-    out["chunk"]["spectra"], recs = _measure(
-        comp, "chunk/spectra", lambda: [run.record(x, FS, depths, settings=settings) for x in xs], (), r)
-    stacked = run._as_jnp(jax.tree.map(lambda *v: np.stack(v), *recs))
-    v_prep = jax.jit(jax.vmap(prepare, in_axes=(0, None)))
-    v_solve = jax.jit(jax.vmap(lambda p: solve(p, None)))
-    v_finish = jax.jit(jax.vmap(finish))
-    out["chunk"]["set-up"], prep = _measure(comp, "chunk/set-up", v_prep, (stacked, settings), r)
-    out["chunk"]["solve"], (sol, free) = _measure(comp, "chunk/solve", v_solve, (prep,), r)
-    out["chunk"]["finish"], staged = _measure(comp, "chunk/finish", v_finish, (stacked, prep, free, sol), r)
-    out["chunk"]["core"], summaries = _measure(comp, "chunk/core", run.fit_many, (recs, settings, n), r)
-    theta = np.stack([q.theta for q in summaries])
-    out["chunk"]["staged_equals_core"] = bool(np.allclose(np.asarray(staged.theta), theta, rtol=1e-8, atol=1e-10))
-    out["chunk"]["row"], rows = _measure(comp, "chunk/row", lambda: [_row(q) for q in summaries], (), r)
-    out["chunk"]["status"] = dict(collections.Counter(q["status"] for q in rows))
-    return out
+    def _save(self, current=None):
+        self.state["current"] = current
+        self.partial.write_text(json.dumps(self.state, default=str))
+
+    # ---- inputs (memoised; a measured stage stores its output under the same name)
+    def value(self, name):
+        if name in self.memo:
+            return self.memo[name]
+        run, s, n = self.run, self.settings, self.args.chunk
+        j = jax.jit
+        make = {
+            "one/x": lambda: _draw(self.clean, 0),
+            "one/record": lambda: run.record(self.value("one/x"), FS, self.depths, settings=s),
+            "one/rec_j": lambda: run._as_jnp(self.value("one/record")),
+            "one/start_j": lambda: run._as_jnp(self.no_start()),
+            "one/set-up": lambda: j(self.programs["prepare"])(self.value("one/rec_j"), s),
+            "one/solve": lambda: j(self.programs["solve"])(self.value("one/set-up"), self.value("one/start_j")),
+            "one/core": lambda: run.fit_one(self.value("one/record"), s),
+            "chunk/x": lambda: [_draw(self.clean, k) for k in range(1, n + 1)],
+            "chunk/record": lambda: [run.record(x, FS, self.depths, settings=s) for x in self.value("chunk/x")],
+            "chunk/rec_j": lambda: run._as_jnp(jax.tree.map(lambda *v: np.stack(v), *self.value("chunk/record"))),
+            "chunk/set-up": lambda: j(jax.vmap(self.programs["prepare"], in_axes=(0, None)))(
+                self.value("chunk/rec_j"), s),
+            "chunk/solve": lambda: j(jax.vmap(lambda p: self.programs["solve"](p, None)))(self.value("chunk/set-up")),
+            "chunk/core": lambda: run.fit_many(self.value("chunk/record"), s, n),
+        }
+        self.memo[name] = make[name]()
+        return self.memo[name]
+
+    def _call(self, key, fn, args):
+        """(cold entry, output, warm seconds): cold = the first call (compile included), warm = repeats."""
+        cold_limit, hang = self.args.compile_timeout, self.args.hang_timeout
+        with self.comp.phase(key + "/cold"):
+            if hasattr(fn, "lower"):                   # a jitted stage: compile, then run under the hang watch
+                t0 = time.perf_counter()
+                with _watch(cold_limit):
+                    fn = fn.lower(*args).compile()
+                with _watch(hang):
+                    out = jax.block_until_ready(fn(*args))
+                cold = time.perf_counter() - t0
+            else:
+                with _watch(cold_limit):
+                    t0 = time.perf_counter()
+                    out = jax.block_until_ready(fn(*args))
+                    cold = time.perf_counter() - t0
+        warm = []
+        with self.comp.phase(key + "/warm"):
+            for _ in range(self.args.repeats):
+                with _watch(hang):
+                    t0 = time.perf_counter()
+                    jax.block_until_ready(fn(*args))
+                    warm.append(time.perf_counter() - t0)
+        return cold, out, warm
+
+    def measure(self, target, stage):
+        key = f"{target}/{stage}"
+        run, s, n = self.run, self.settings, self.args.chunk
+        progs, v = self.programs, self.value
+        if target == "one":
+            calls = {
+                "spectra": (lambda: run.record(v("one/x"), FS, self.depths, settings=s), ()),
+                "set-up": (jax.jit(progs["prepare"]), lambda: (v("one/rec_j"), s)),
+                "solve": (jax.jit(progs["solve"]), lambda: (v("one/set-up"), v("one/start_j"))),
+                "finish": (jax.jit(progs["finish"]), lambda: (v("one/rec_j"), v("one/set-up"), v("one/solve")[1],
+                                                             v("one/solve")[0])),
+                "core": (run.fit_one, lambda: (v("one/record"), s)),
+                "fit_recording": (None, None),
+                "row": (_row, lambda: (v("one/core"),)),
+            }
+        else:
+            calls = {
+                "spectra": (lambda: [run.record(x, FS, self.depths, settings=s) for x in v("chunk/x")], ()),
+                "set-up": (jax.jit(jax.vmap(progs["prepare"], in_axes=(0, None))), lambda: (v("chunk/rec_j"), s)),
+                "solve": (jax.jit(jax.vmap(lambda p: progs["solve"](p, None))), lambda: (v("chunk/set-up"),)),
+                "finish": (jax.jit(jax.vmap(progs["finish"])), lambda: (v("chunk/rec_j"), v("chunk/set-up"),
+                                                                       v("chunk/solve")[1], v("chunk/solve")[0])),
+                "core": (run.fit_many, lambda: (v("chunk/record"), s, n)),
+                "row": (lambda summaries: [_row(q) for q in summaries], lambda: (v("chunk/core"),)),
+            }
+        if stage == "fit_recording":
+            return self._fit_recording()
+        fn, args = calls[stage]
+        args = args() if callable(args) else args
+        self._save(current=key)
+        cold, out, warm = self._call(key, fn, args)
+        self.memo[{"spectra": f"{target}/record"}.get(stage, key)] = out
+        entry = {"cold_s": cold, "warm_s": statistics.median(warm), "warm_all_s": warm,
+                 "compiles_cold": self.comp.of(key + "/cold"), "compiles_warm": self.comp.of(key + "/warm")}
+        if stage == "finish":
+            core = self.memo.get(f"{target}/core")
+            entry["theta_equals_core"] = None if core is None else self._same(out, core)
+        if stage == "core":
+            fin = self.memo.get(f"{target}/finish")
+            entry["theta_equals_staged"] = None if fin is None else self._same(fin, out)
+        if stage == "row":
+            rows = out if isinstance(out, list) else [out]
+            entry["statuses"] = dict(collections.Counter(r["status"] for r in rows))
+        self._done(key, entry)
+
+    @staticmethod
+    def _same(staged, core):
+        theta = np.stack([q.theta for q in core]) if isinstance(core, list) else np.asarray(core.theta)
+        return bool(np.allclose(np.asarray(staged.theta), theta, rtol=1e-8, atol=1e-10))
+
+    def _fit_recording(self):
+        """``fit_recording`` of record 0, counting the core calls its layers make (refits go through fit_one)."""
+        from tactile_jax.fit import FitOptions, fit_recording
+
+        key = "one/fit_recording"
+        run = self.run
+        calls = collections.Counter()
+        orig = run.fit_one
+
+        def counting(*a, **kw):
+            calls["n"] += 1
+            return orig(*a, **kw)
+
+        recording = _recording(self.value("one/x"), 0)
+        self._save(current=key)
+        run.fit_one = counting
+        try:
+            cold, res, warm = self._call(key, fit_recording, (recording, FitOptions()))
+        finally:
+            run.fit_one = orig
+        entry = {"cold_s": cold, "warm_s": statistics.median(warm), "warm_all_s": warm,
+                 "compiles_cold": self.comp.of(key + "/cold"), "compiles_warm": self.comp.of(key + "/warm"),
+                 "core_calls": calls["n"] // (self.args.repeats + 1), "status": res.status, "message": res.message}
+        self._done(key, entry)
+
+    def _done(self, key, entry):
+        target, stage = key.split("/")
+        self.state[target][stage] = entry
+        self._save()
+        c = entry["compiles_cold"]
+        print(f"  {key:24s} cold {entry['cold_s']:8.3f} s  warm {entry['warm_s']:8.4f} s  compiles {c['n']} "
+              f"({c['compile_s']:.1f} s) / {entry['compiles_warm']['n']}", file=sys.stderr, flush=True)
+
+    def run_all(self):
+        for target, stage in ORDER:
+            key = f"{target}/{stage}"
+            if stage in self.state[target] or key in self.state["hung"]:
+                continue
+            self.measure(target, stage)
+        self._save()
+
+
+def stages_child(args) -> None:
+    """(--stages-child) measure the stages not yet in the partial file, in this fresh process."""
+    comp = Compiles()
+    jax.monitoring.register_event_duration_secs_listener(comp.listen)
+    clean, _ = _scenes(args.out / "joint_speed_scenes.npz")
+    StageRunner(args, clean, comp, Path(args.stages_child)).run_all()
+
+
+def run_stages(args, partial: Path) -> dict:
+    """Every stage, in child processes: a call that does not return within ``--hang-timeout`` s (compiles:
+    ``--compile-timeout``) ends its process; that stage is marked hung and a fresh process goes on with the
+    next. (jaxlib 0.10.2 on a 2-core CPU: the separately jitted, vmapped ``finish`` has deadlocked in
+    ``block_until_ready`` with both intra-op threads waiting in batched LAPACK kernels, ``ParallelBatchMap``.)"""
+    partial.unlink(missing_ok=True)
+    for attempt in range(len(ORDER)):
+        cmd = [sys.executable, __file__, "--stages-child", str(partial), "--out", str(args.out), "--repeats",
+               str(args.repeats), "--chunk", str(args.chunk), "--hang-timeout", str(args.hang_timeout),
+               "--compile-timeout", str(args.compile_timeout)]
+        proc = subprocess.run(cmd, env=_clean_env(), stderr=subprocess.PIPE, text=True)
+        sys.stderr.write("".join(line + "\n" for line in proc.stderr.splitlines()
+                                 if line.startswith("  ") and "Warning" not in line))
+        state = json.loads(partial.read_text()) if partial.exists() else None
+        if proc.returncode == 0 and state is not None:
+            return state
+        if state is None or not state.get("current") or "Timeout (" not in proc.stderr:
+            raise SystemExit(f"the stage process failed:\n{proc.stderr[-3000:]}")
+        print(f"  {state['current']}: no result within the time limit (process ended, exit {proc.returncode}); "
+              "going on in a fresh process", file=sys.stderr)
+        state["hung"].append(state["current"])
+        state["current"] = None
+        partial.write_text(json.dumps(state))
+    raise SystemExit("too many stage processes ended")
 
 
 # --------------------------------------------------------------------------- subprocesses
@@ -285,7 +419,13 @@ def _clean_env(**extra):
     return env
 
 
-def cold_fit(path: str) -> dict:
+def _timed(fn, *args):
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return time.perf_counter() - t0, out
+
+
+def cold_fit(path: str, limit: float) -> dict:
     """(--cold-fit) ``fit_recording`` twice in this fresh process, no persistent cache: JSON on stdout."""
     comp = Compiles()
     jax.monitoring.register_event_duration_secs_listener(comp.listen)
@@ -295,9 +435,9 @@ def cold_fit(path: str) -> dict:
 
     rec = read_recording(path)
     t_import = time.perf_counter() - t0
-    with comp.phase("first"):
+    with comp.phase("first"), _watch(limit):
         t1, res = _timed(fit_recording, rec, FitOptions())
-    with comp.phase("second"):
+    with comp.phase("second"), _watch(limit):
         t2, _ = _timed(fit_recording, rec, FitOptions())
     return {"import_read_s": t_import, "first_s": t1, "second_s": t2, "status": res.status,
             "compiles_first": comp.of("first"), "compiles_second": comp.of("second"),
@@ -313,7 +453,7 @@ def _files_in(folder: Path) -> int:
     return sum(1 for p in folder.rglob("*") if p.is_file()) if folder.exists() else 0
 
 
-def persistent_cache(files: list[Path], work: Path) -> dict:
+def persistent_cache(files: list[Path], work: Path, limit: float) -> dict:
     """Wall seconds of ``tactile-jax fit`` with a fresh persistent cache, the warm cache, and 4 files."""
     tmp = Path(tempfile.mkdtemp(prefix="tjx_cache_"))
     cache = tmp / "jax"                  # the CLI writes its jax.export file beside it (tmp / "export")
@@ -324,7 +464,10 @@ def persistent_cache(files: list[Path], work: Path) -> dict:
         dest = work / f"cli_{name}.json"
         cmd = _cli() + ["fit", *map(str, paths), "--out", str(dest), "--quiet"]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        try:
+            proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=limit)
+        except subprocess.TimeoutExpired as exc:
+            proc = subprocess.CompletedProcess(cmd, "timeout", "", str(exc))
         wall = time.perf_counter() - t0
         rows = json.loads(dest.read_text()) if dest.exists() else []
         entry = {"run": name, "files": len(paths), "wall_s": wall, "rc": proc.returncode,
@@ -378,41 +521,52 @@ def _fmt_c(c):
 
 def table(res: dict, args) -> str:
     m = res["machine"]
-    one, chunk, cold = res["stages"]["one"], res["stages"]["chunk"], res["fit_recording_fresh_process"]
+    st_all, cold = res["stages"], res.get("fit_recording_fresh_process") or {}
+    one, chunk, hung = st_all["one"], st_all["chunk"], set(st_all.get("hung", []))
     n = args.chunk
     lines = [f"machine: {m['processor']}, {m['cpu_count']} CPUs ({m['cpus_usable']} usable), {m['platform']}, "
              f"Python {m['python']}, jax {m['jax']} (jaxlib {m['jaxlib']}, {m['backend']}), numpy {m['numpy']}, "
-             f"scipy {m['scipy']}; load average at start {m['load_avg_1_5_15']}",
-             f"records: 4 x {int(DURATION * FS)} samples at {FS:g} Hz, SNR {SNR_DB:g} dB; warm = median of "
-             f"{args.repeats}; compiles = XLA backend compilations (seconds) in the phase", "",
+             f"scipy {m['scipy']}; load average at start {m['load_avg_1_5_15']}, at end {res.get('load_avg_end')}",
+             f"records: {int(DURATION * FS)} samples x 4 at {FS:g} Hz, SNR {SNR_DB:g} dB; cold = first call in the "
+             f"process (compile included); warm = median of {args.repeats}; compiles = XLA backend compilations "
+             "(their seconds) in the phase", "",
              f"| stage | one: cold s | one: warm s | one: compiles cold / warm | chunk {n}: cold s | "
              f"chunk {n}: warm s | per record warm s | chunk: compiles cold / warm |",
              "|---|---|---|---|---|---|---|---|"]
+
+    def cells(target, st, e):
+        if e is None:
+            if f"{target}/{st}" in hung:
+                return [f"hung (no result in {args.hang_timeout:g} s)", "-", "-"]
+            return ["-", "-", "-"]
+        return [f"{e['cold_s']:.3f}", f"{e['warm_s']:.4f}", f"{_fmt_c(e['compiles_cold'])} / {e['compiles_warm']['n']}"]
+
     for st in STAGES:
-        o = one.get(st)
-        c = chunk.get(st)
+        o = cells("one", st, one.get(st))
+        if st == "fit_recording" and cold.get("first_s") is not None and one.get(st):
+            o[0] = f"{cold['first_s']:.2f} fresh process ({one[st]['cold_s']:.2f} here)"
+            o[2] = (f"{_fmt_c(cold['compiles_first'])} fresh; {one[st]['compiles_cold']['n']} here / "
+                    f"{one[st]['compiles_warm']['n']}")
         if st == "fit_recording":
-            ocold = f"{cold['first_s']:.2f} (fresh process; {o['cold_s']:.2f} here)"
-            ocomp = f"{_fmt_c(cold['compiles_first'])} fresh; {o['compiles_cold']['n']} here / {o['compiles_warm']['n']}"
+            c = ["n/a (the batch does not layer)", "", "", ""]
         else:
-            ocold = f"{o['cold_s']:.3f}"
-            ocomp = f"{_fmt_c(o['compiles_cold'])} / {o['compiles_warm']['n']}"
-        row = f"| {st} | {ocold} | {o['warm_s']:.4f} | {ocomp} | "
-        if c is None:
-            row += "n/a (the batch does not layer) | | | |"
-        else:
-            row += (f"{c['cold_s']:.3f} | {c['warm_s']:.4f} | {c['warm_s'] / n:.4f} | "
-                    f"{_fmt_c(c['compiles_cold'])} / {c['compiles_warm']['n']} |")
-        lines.append(row)
-    fr = one["fit_recording"]
-    lines += ["", f"fit_recording of record 0: status {fr['status']}, {fr['core_calls']} core calls per fit "
-                  f"({fr['message'] or 'no message'}); staged prepare+solve+finish = core: one "
-                  f"{one['staged_equals_core']}, chunk {chunk['staged_equals_core']}; chunk statuses "
-                  f"{chunk['status']}"]
+            c = cells("chunk", st, chunk.get(st))
+            e = chunk.get(st)
+            c.insert(2, f"{e['warm_s'] / n:.4f}" if e else "-")
+        lines.append(f"| {st} | " + " | ".join(o + c) + " |")
+    fr = one.get("fit_recording") or {}
+    lines += ["", f"fit_recording of record 0: status {fr.get('status')}, {fr.get('core_calls')} core calls per fit "
+                  f"({fr.get('message') or 'no message'}); staged prepare + solve + finish give core's theta: one "
+                  f"{(one.get('core') or {}).get('theta_equals_staged')}, chunk "
+                  f"{(chunk.get('core') or {}).get('theta_equals_staged')}; statuses: one "
+                  f"{(one.get('row') or {}).get('statuses')}, chunk {(chunk.get('row') or {}).get('statuses')}"]
+    if hung:
+        lines.append(f"hung: {sorted(hung)} (a call that did not return; its process was ended and a fresh one "
+                     "went on; see run_stages)")
     pc = res.get("persistent_cache")
     if pc:
         lines += ["", f"persistent cache (`tactile-jax fit FILE --out X.json --quiet`, TACTILE_JAX_CACHE=<tmp>/jax; "
-                      f"`import tactile_jax.cli` alone {pc['import_only_s']:.2f} s):", "",
+                      f"`import tactile_jax.cli, tactile_jax.fit` alone {pc['import_only_s']:.2f} s):", "",
                   "| run | files | wall s | exit | statuses | cache files after |", "|---|---|---|---|---|---|"]
         for e in pc["runs"]:
             lines.append(f"| {e['run']} | {e['files']} | {e['wall_s']:.2f} | {e['rc']} | {e['statuses']} | "
@@ -425,26 +579,30 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
     ap.add_argument("--repeats", type=int, default=5, help="warm calls per stage (the median is reported)")
     ap.add_argument("--chunk", type=int, default=16, help="records in the batch chunk")
+    ap.add_argument("--hang-timeout", type=float, default=120.0,
+                    help="seconds a compiled call may run before it counts as hung (its process is ended)")
+    ap.add_argument("--compile-timeout", type=float, default=900.0, help="the same for a call that compiles")
     ap.add_argument("--cold-fit", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--stages-child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.cold_fit:
-        print(json.dumps(cold_fit(args.cold_fit)))
+        print(json.dumps(cold_fit(args.cold_fit, args.compile_timeout)))
+        return
+    if args.stages_child:
+        stages_child(args)
         return
     if args.repeats < 1 or args.chunk < 1:
         raise SystemExit("--repeats and --chunk must be at least 1")
-    if jax.config.jax_compilation_cache_dir:
-        print(f"note: a persistent compilation cache is set ({jax.config.jax_compilation_cache_dir}): cold times "
-              "may be cache hits", file=sys.stderr)
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        print("note: JAX_COMPILATION_CACHE_DIR is set; the benchmark's processes run without it", file=sys.stderr)
     args.out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     res = {"machine": machine(), "settings": {"chunk": args.chunk, "repeats": args.repeats, "fs": FS,
                                               "duration_s": DURATION, "snr_db": SNR_DB,
                                               "scenes": [list(s) for s in SCENES]}}
     clean, _ = _scenes(args.out / "joint_speed_scenes.npz")
-    comp = Compiles()
-    jax.monitoring.register_event_duration_secs_listener(comp.listen)
-    print("stages:", file=sys.stderr)
-    res["stages"] = one_and_chunk(args, clean, comp)
+    print("stages (one record, then the chunk):", file=sys.stderr)
+    res["stages"] = run_stages(args, args.out / "joint_speed_partial.json")
 
     from tactile_jax.io import write_recording
 
@@ -452,23 +610,31 @@ def main(argv=None):
     try:
         files = [write_recording(work / f"rec{j}.npz", _recording(_draw(clean, j), j)) for j in (0, 4, 5, 6, 7, 8)]
         print("fit_recording in a fresh process:", file=sys.stderr)
-        proc = subprocess.run([sys.executable, __file__, "--cold-fit", str(files[0])], env=_clean_env(),
-                              capture_output=True, text=True)
-        if proc.returncode:
-            raise SystemExit(f"the fresh-process fit failed:\n{proc.stderr[-3000:]}")
-        res["fit_recording_fresh_process"] = json.loads(proc.stdout.strip().splitlines()[-1])
-        print(f"  first {res['fit_recording_fresh_process']['first_s']:.2f} s, second "
-              f"{res['fit_recording_fresh_process']['second_s']:.2f} s", file=sys.stderr)
+        try:
+            proc = subprocess.run([sys.executable, __file__, "--cold-fit", str(files[0]), "--compile-timeout",
+                                   str(args.compile_timeout)], env=_clean_env(), capture_output=True, text=True,
+                                  timeout=args.compile_timeout + 60)
+            if proc.returncode:
+                print(f"  the fresh-process fit failed:\n{proc.stderr[-2000:]}", file=sys.stderr)
+                res["fit_recording_fresh_process"] = {"error": proc.stderr[-2000:]}
+            else:
+                res["fit_recording_fresh_process"] = json.loads(proc.stdout.strip().splitlines()[-1])
+                print(f"  first {res['fit_recording_fresh_process']['first_s']:.2f} s, second "
+                      f"{res['fit_recording_fresh_process']['second_s']:.2f} s", file=sys.stderr)
+        except subprocess.TimeoutExpired:
+            res["fit_recording_fresh_process"] = {"error": "timeout"}
         print("persistent cache:", file=sys.stderr)
-        res["persistent_cache"] = persistent_cache(files, work)
+        res["persistent_cache"] = persistent_cache(files, work, args.compile_timeout)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     res["total_s"] = time.perf_counter() - t_start
+    res["load_avg_end"] = [round(v, 2) for v in os.getloadavg()] if hasattr(os, "getloadavg") else None
     text = table(res, args)
     print(text)
     res["table"] = text
     path = args.out / "joint_speed.json"
     path.write_text(json.dumps(res, indent=1, default=str))
+    (args.out / "joint_speed_partial.json").unlink(missing_ok=True)
     print(f"\nwrote {path} ({res['total_s']:.0f} s in all)", file=sys.stderr)
 
 

@@ -22,13 +22,12 @@ import math
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from . import model_select
 from .errors import TactileInputError
 from .joint import run
-from .joint.core import N_KNOTS, STATUS, STEP_TOL, Record, Settings, Summary
+from .joint.core import STATUS, STEP_TOL, Record, Settings, Summary
 from .joint.model import N_PHYS, param_names
 from .joint.residuals import residuals as joint_residuals
 from .pair_fit import fit_pair

@@ -1,11 +1,9 @@
 """The pair model's spectral-window average, weighted by the shallow spectrum the estimator saw."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.fit import FitOptions
 from tactile_jax.pair_fit import _residuals, fit_pair, kernel_log_weights
 from tactile_jax.r_curve import log_r_exact
 from tactile_jax.sensor import PAPER_SENSOR

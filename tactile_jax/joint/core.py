@@ -33,7 +33,7 @@ import numpy as np
 from jax.scipy.special import digamma
 
 from .._numerics import tiny
-from ..gauss_newton import gauss_newton, iterate
+from ..gauss_newton import gauss_newton
 from ..lsq import equilibrated_inverse, fit_statistics
 from ..r_curve import log_g, log_r_exact
 from jax.scipy.special import logsumexp
@@ -51,7 +51,7 @@ __all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepa
 #: integer status codes of ``Summary.status``
 STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
 N_KNOTS = 12
-#: fixed iterations: from every start on the texture alone, from every start in all, then from the best
+#: fixed iterations: per start on the texture alone, per start in all, then from the best start
 ITERATIONS = (3, 7, 18)
 POOR_FIT_REDCHI = 4.0
 #: a stop counts as converged when a full Gauss-Newton step would lower chi2 by less than this...
@@ -236,7 +236,7 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     half = d_omega * (i0 + offsets)
     resp_h = _filter_response(seg.whitening, half, seg.fs)
     resp_b = _filter_response(seg.whitening, om, seg.fs)
-    d1, d2 = depths[0], depths[1]
+    d1 = depths[0]
 
     # ---- starting values: Eq. 6 speeds, Eq. 26 radius, texture knots from the faster pair's shallow spectrum
     known = record.known
