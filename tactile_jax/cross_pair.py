@@ -38,7 +38,6 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
-import scipy.special
 
 __all__ = ["ChainEstimate", "chain_matrix", "chain_estimate", "chain_offsets", "regression"]
 
@@ -134,6 +133,8 @@ def chain_offsets(dof: float) -> tuple[np.ndarray, np.ndarray]:
     The offset is the mean of log S_t.u-hat less that of a channel's PSD, whose own
     psi(K) - log K the model's fitted level absorbs (as ``fit.conditioned_fields``'s).
     """
+    import scipy.special  # here, not at import: importing it takes about 0.25 s
+
     n = np.array([len(r) for _, r in BLOCKS], float)
     k = np.maximum(float(dof) - n, 1.0)
     return np.sqrt(k), scipy.special.digamma(k) - scipy.special.digamma(float(dof))

@@ -53,7 +53,6 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.fft
 
 from .errors import TactileInputError
 from .recording import Recording
@@ -189,6 +188,8 @@ class _Plan:
 
 
 def _plan(scene: Scene) -> _Plan:
+    import scipy.fft  # here, not at import: importing scipy.fft takes about 0.5 s
+
     vx, vy = _vector("velocity", scene.velocity, 2)
     speed = math.hypot(vx, vy)
     if speed == 0:
@@ -274,6 +275,8 @@ def _kernel_rows(plan: _Plan, eta):
 
 def _read_shifts(acc: np.ndarray, plan: _Plan) -> np.ndarray:
     """Correlations (4, F) in the frequency domain -> probe signals (4, n) at shifts s_n."""
+    import scipy.fft
+
     n_idx = np.arange(plan.n)
     nfft, q = plan.nfft, plan.q
     if q == 1:
@@ -306,6 +309,8 @@ def probe_signals(scene: Scene, rng=None) -> tuple[np.ndarray, float]:
     ``rng`` (numpy Generator) draws a random texture; default: from ``scene.seed``
     as :func:`simulate` does.
     """
+    import scipy.fft
+
     plan = _plan(scene)
     if rng is None:
         rng = _rngs(scene.seed)[0]

@@ -26,7 +26,6 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.fft
 
 from .errors import TactileInputError
 
@@ -120,6 +119,8 @@ class RandomTexture:
         the variance is rms^2 in expectation over realisations (not forced per
         realisation).
         """
+        import scipy.fft  # here, not at import: importing scipy.fft takes about 0.5 s
+
         ny, nx = (int(n) for n in shape)
         dy, dx = (float(spacing), float(spacing)) if np.ndim(spacing) == 0 else (float(s) for s in spacing)
         pad = 5.0 * self.correlation_length

@@ -26,7 +26,7 @@ from tactile_jax.r_curve import log_g, log_r_exact
 from tactile_jax.recording import Recording
 from tactile_jax.scene import Scene, simulate
 from tactile_jax.spectra import amplitude_ratio, estimate_spectra, usable_band, whitened_psd
-from tactile_jax.texture import RandomTexture
+from tactile_jax.texture import Grating, RandomTexture, WireNet
 
 #: the cases that simulate and fit a scene each: ``pytest -m slow``; the default run keeps the cheap ones
 slow = pytest.mark.slow
@@ -165,6 +165,21 @@ def test_hard_scenes(name):
     assert_honest(res, _truth(scene))
     if name == "deep_drowned":
         assert res.status == "no_band", (res.status, res.message)
+
+
+#: textures outside the model (a smooth isotropic spectrum): lines, in one or two directions
+LINE_TEXTURES = {
+    "grating_30deg": Grating(pitch=1e-3, angle=np.radians(30.0), profile="sine"),
+    "wire_net_oblique": WireNet(pitch=1e-3),
+}
+
+
+@slow
+@pytest.mark.parametrize("name", list(LINE_TEXTURES))
+def test_line_textures_get_no_confident_number(name):
+    scene = dataclasses.replace(BASE, texture=LINE_TEXTURES[name], velocity=(0.025, 0.02), contact_radius=1.5e-3,
+                                seed=12)
+    assert_honest(fit_recording(simulate(scene), FitOptions()), _truth(scene))
 
 
 @slow
