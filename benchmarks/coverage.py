@@ -100,7 +100,7 @@ def _interval_hits(r, name):
 
 
 def _target(small):
-    """Issue 3's accuracy target on the small contacts, and what the stated errors allow.
+    """The accuracy target on the small contacts, and what the stated errors allow.
 
     ``both_speeds_2pct``: share of fits with |vx| and |vy| each within 2 % of |v|;
     ``a_5pct``: a within 5 %. ``*_expected``: the same shares for an unbiased
@@ -129,8 +129,7 @@ ANGLE_BANDS = ((0, 20), (20, 45), (45, 70), (70, 90))     # deg from the x axis
 
 
 def _by_angle(rows):
-    """1-sigma coverage of the reported intervals of vx and vy per slip-angle band (the near-axis
-    major component's intervals have been the widest: README, "Error bars: coverage")."""
+    """1-sigma coverage of the reported intervals of vx and vy per slip-angle band (deg from the x axis)."""
     out = {}
     for lo, hi in ANGLE_BANDS:
         band = [r for r in rows if lo <= r["angle_deg"] < hi or (hi == 90 and r["angle_deg"] == 90)]

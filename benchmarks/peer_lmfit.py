@@ -1,4 +1,4 @@
-"""A scipy / lmfit peer of the exact-R pair fit, for benchmarks/speed_vs_error.py (issue 5).
+"""A scipy / lmfit peer of the exact-R pair fit, for benchmarks/speed_vs_error.py.
 
 An independent implementation of the same estimator with the tools a
 scientist would reach for: ``scipy.signal.welch`` / ``csd`` (Hann, the same

@@ -598,8 +598,10 @@ def fig8(out: Path, quick: bool) -> list[Row]:
 
 def _fig8_reason(obj: str) -> str:
     if obj == "RandomTexture":
-        return ("broadband texture, joint fit over the low-alpha band, where log R's curvature measures the window's "
-                "second moment: Gaussian a^2/3 against Hertz's a^2/5 gives a_G^2 = (3/5) a_H^2, i.e. R_apparent ~ 18 mm")
+        return ("broadband texture, Gaussian-window joint fit of a Hertz contact: the windows' second moments alone "
+                "(Gaussian a^2/3, Hertz a^2/5) predict a_G = 0.77 a_H (R_apparent 18 mm) at small alpha a, but the "
+                "fit's band reaches alpha a where the Hertz R curve is no Gaussian one, so the fitted a depends on "
+                "the band: it is not a calibrated Hertz radius")
     if obj == "Grating":
         return ("lines at alpha = 4.2, 8.4, 12.6 /mm (alpha a = 5-20), where the Hertz edge makes log R oscillate "
                 "with alpha a (Fig. 7, dotted): a Gaussian fit of three lines scatters around sqrt(R d) (0.9-1.5, one "

@@ -1,10 +1,10 @@
 """Tests run in float64 (chosen here, as the library leaves it to the entry points).
 
 Every joint fit runs one compiled program (``joint.core``: its inputs have one shape whatever the
-recording), so the suite pays its compilation once per worker process. The modules run in parallel
-(pytest-xdist, ``--dist loadfile`` in pyproject.toml), each module's tests in one process so that
-they share its fixtures, and the processes share one compilation cache per run (below): a program one
-worker compiled is loaded by the others.
+recording), so the suite pays its compilation once. The modules run in parallel (pytest-xdist,
+``--dist loadgroup`` in pyproject.toml): every module that runs the joint pipeline goes to one worker
+(``JOINT_MODULES``), each other module's tests to one process so that they share its fixtures, and
+the processes share one compilation cache per run (below).
 """
 
 import os
