@@ -24,5 +24,6 @@ from .scene import Scene as Scene, simulate as simulate
 from .spectra import amplitude_ratio as amplitude_ratio, estimate_spectra as estimate_spectra
 from .spectra import usable_band as usable_band, whitened_psd as whitened_psd
 from .texture import Grating as Grating, RandomTexture as RandomTexture, WireNet as WireNet
+from .texture import DirectionalTexture as DirectionalTexture, ModeTexture as ModeTexture
 
 __version__ = "0.1.0"

@@ -60,8 +60,9 @@ def main():
 
 @main.command()
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Recording file to write (.h5, .hdf5 or .npz).")
-@click.option("--texture", type=click.Choice(["random", "grating", "net"]), default="random", show_default=True,
-              help="random (foamed polystyrene), grating (1-D, like the paper's pipes) or net (wire net).")
+@click.option("--texture", type=click.Choice(["random", "grating", "net", "directional", "modes"]), default="random",
+              show_default=True, help="random (foamed polystyrene), grating (1-D, like the paper's pipes), net (wire net),"
+              " directional (anisotropic random, 3:1 along x) or modes (300 plane waves, seeded by --seed).")
 @click.option("--pitch", type=float, default=None, help="Grating or net pitch, m (defaults 1.5e-3 and 0.5e-3).")
 @click.option("--angle", type=float, default=0.0, show_default=True, help="Grating wavevector angle from the x axis, degrees.")
 @click.option("--velocity", default="0.023,0.0", show_default=True, help="Slip vx,vy in m/s.")
@@ -85,12 +86,16 @@ def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth
 
     from .io import write_recording
     from .scene import Scene, simulate as run
-    from .texture import Grating, RandomTexture, WireNet
+    from .texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet
 
     if texture == "random":
         tex = RandomTexture()
     elif texture == "grating":
         tex = Grating(pitch=pitch or 1.5e-3, angle=math.radians(angle))
+    elif texture == "directional":
+        tex = DirectionalTexture()
+    elif texture == "modes":
+        tex = ModeTexture(seed=seed)
     else:
         tex = WireNet(pitch=pitch or 0.5e-3)
     if contact_radius is None and contact_depth is None:

@@ -10,8 +10,8 @@ Schema (shared with the paper-experiment recipes)::
     [simulate]   # optional: the scene a recipe reproduces (scene.Scene fields; ignored by `fit --scene`)
     velocity = [0.047, 0.0]
     contact_radius = 2.2e-3
-    [simulate.texture]           # optional: name = a texture class (RandomTexture, Grating, WireNet) + its fields
-    name = "WireNet"
+    [simulate.texture]           # optional: name = a texture class + its fields (RandomTexture,
+    name = "WireNet"             #   DirectionalTexture, ModeTexture, Grating, WireNet)
     pitch = 0.5e-3
     [sweep]      # optional, free-form: read by fits/reproduce.py only
 
@@ -34,6 +34,7 @@ from .model_select import MODELS
 __all__ = ["Recipe", "list_recipes", "load_recipe", "recipe_options", "scene_from_recipe"]
 
 _TOP_KEYS = ("description", "fit", "simulate", "sweep")
+_TEXTURES = ("RandomTexture", "DirectionalTexture", "ModeTexture", "Grating", "WireNet")
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(FitOptions)}
 _CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"),
             "model": MODELS}
@@ -115,7 +116,7 @@ def _scene_table(table, path) -> dict:
         if key not in fields:
             raise _bad(path, f"unknown key [simulate] {key!r}; expected Scene fields ({', '.join(sorted(fields))})")
     if "texture" in table and not (isinstance(table["texture"], dict) and "name" in table["texture"]):
-        raise _bad(path, "[simulate.texture] must be a table with a name (RandomTexture, Grating, WireNet)")
+        raise _bad(path, f"[simulate.texture] must be a table with a name ({', '.join(_TEXTURES)})")
     return dict(table)
 
 
@@ -150,8 +151,8 @@ def scene_from_recipe(recipe: Recipe):
     table = dict(recipe.simulate)
     tex = dict(table.pop("texture", {"name": "RandomTexture"}))
     name = tex.pop("name")
-    if name not in ("RandomTexture", "Grating", "WireNet"):
-        raise _bad(recipe.path, f"[simulate.texture] name = {name!r}: expected RandomTexture, Grating or WireNet")
+    if name not in _TEXTURES:
+        raise _bad(recipe.path, f"[simulate.texture] name = {name!r}: expected {', '.join(_TEXTURES[:-1])} or {_TEXTURES[-1]}")
     if "contact_depth" in table and "contact_radius" not in table:
         table["contact_radius"] = None
     for key in ("velocity", "gains", "dc_offset"):

@@ -316,7 +316,9 @@ def test_pair_fit_with_the_window_term_on_hard_scenes(name):
     ratio = amplitude_ratio(spec)
     band = np.asarray(usable_band(ratio)[0])
     if band.sum() < 5:
-        assert name in QUICK, f"{name}: {band.sum()} usable bins"
+        # a 3 mm/s slip's band is a few Hz: under 5 bins of the default segment, for the pair path as for the
+        # joint one (which lengthens its segments for it: test_hard_scenes)
+        assert name in QUICK + ("slow_near_dc",), f"{name}: {band.sum()} usable bins"
         return
     f = fit_pair(np.asarray(ratio.omega), np.nan_to_num(np.asarray(ratio.log_ratio[0])),
                  np.asarray(ratio.log_ratio_err[0]), band, *rec.depths, kernel=spec.kernel,
