@@ -129,6 +129,16 @@ def test_mode_texture_field_is_the_sum_of_its_modes_and_broadcasts():
     assert u[1, 0] == pytest.approx(float(tex.field(1e-3 * c - 5e-4 * s, 1e-3 * s + 5e-4 * c)), rel=1e-12)
 
 
+def test_mode_texture_on_a_rotated_grid_is_its_pointwise_field():
+    tex = ModeTexture(n_modes=50, anisotropy=2.0, angle=0.3)
+    xi, eta, phi = np.linspace(0.0, 3e-3, 90), np.linspace(-1e-3, 1e-3, 41), 0.7
+    x = xi[None, :] * math.cos(phi) - eta[:, None] * math.sin(phi)
+    y = xi[None, :] * math.sin(phi) + eta[:, None] * math.cos(phi)
+    grid = texture_field(tex, xi, eta, phi)
+    assert grid.shape == (41, 90)
+    assert np.allclose(grid, tex.field(x, y), rtol=0, atol=1e-12)
+
+
 def test_mode_texture_follows_the_radial_spectrum_and_anisotropy():
     tex = ModeTexture(n_modes=2000, anisotropy=3.0, angle=0.4)
     kvec = tex.modes[0]

@@ -1,0 +1,220 @@
+"""The default fit on each kind of texture: statuses, accuracy, coverage, confident wrong answers, time.
+
+Seeded scenes per kind, 16 s at 1 kHz, Gaussian window, oblique slips (|v|
+log-uniform 1-8 cm/s, direction uniform 0-90 deg), contact radius uniform
+0.8-3 mm, SNR uniform 40-50 dB:
+
+- ``isotropic``: RandomTexture (the model's own assumption);
+- ``directional``: DirectionalTexture, anisotropy uniform 1.5-3, lobe angle uniform 0-180 deg;
+- ``modes``: ModeTexture, 300 plane waves (seeded per scene);
+- ``grating``: a sine Grating, pitch uniform 0.7-1.5 mm, wavevector angle uniform 0-180 deg;
+- ``wire_net``: WireNet, pitch uniform 0.8-1.5 mm, wire width pitch / 5, angle uniform 0-90 deg.
+
+Each record goes through ``fit.fit_recording`` with its defaults and through
+the per-pair scipy reference (``scipy_reference.fit_record``). Reported per
+kind: statuses; over the ``ok`` rows, both speeds within 3 % of |v|, a within
+5 %, 1-sigma coverage of vx, vy and a; and the share of scenes with a
+confident wrong answer (status ``ok`` and some reported value more than 3 of
+its sigmas from the truth). Times are medians per record after compilation.
+
+    python benchmarks/textures.py --scenes 20 --out benchmarks/out
+    python benchmarks/textures.py --kinds directional,modes --scenes 50 --out /tmp/tex
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import scipy_reference  # noqa: E402
+
+from tactile_jax.errors import TactileInputError  # noqa: E402
+from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
+from tactile_jax.scene import Scene, simulate  # noqa: E402
+from tactile_jax.spectra import default_nperseg  # noqa: E402
+from tactile_jax.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet  # noqa: E402
+
+KINDS = ("isotropic", "directional", "modes", "grating", "wire_net")
+FS, DURATION = 1000.0, 16.0
+
+
+def texture(kind: str, rng, seed: int):
+    if kind == "isotropic":
+        return RandomTexture()
+    if kind == "directional":
+        return DirectionalTexture(anisotropy=float(rng.uniform(1.5, 3.0)), angle=float(rng.uniform(0, np.pi)))
+    if kind == "modes":
+        return ModeTexture(n_modes=300, seed=seed)
+    if kind == "grating":
+        return Grating(pitch=float(rng.uniform(0.7e-3, 1.5e-3)), angle=float(rng.uniform(0, np.pi)), profile="sine")
+    if kind == "wire_net":
+        pitch = float(rng.uniform(0.8e-3, 1.5e-3))
+        return WireNet(pitch=pitch, wire_width=pitch / 5, angle=float(rng.uniform(0, np.pi / 2)))
+    raise ValueError(f"unknown kind {kind!r}; expected one of {', '.join(KINDS)}")
+
+
+def scenes(kind: str, n: int, seed: int = 31):
+    rng = np.random.default_rng([seed, KINDS.index(kind)])
+    for i in range(n):
+        speed = float(np.exp(rng.uniform(np.log(0.01), np.log(0.08))))
+        angle = float(rng.uniform(0, np.pi / 2))
+        a = float(rng.uniform(0.8e-3, 3e-3))
+        snr = float(rng.uniform(40, 50))
+        s = int(rng.integers(1 << 30))
+        yield Scene(texture=texture(kind, rng, s), velocity=(speed * np.cos(angle), speed * np.sin(angle)),
+                    contact_radius=a, snr_db=snr, duration=DURATION, fs=FS, seed=s)
+
+
+def _simulate(scene):
+    try:
+        return simulate(scene)
+    except TactileInputError:       # a large contact at a fast slip: a coarser grid still resolves d1
+        return simulate(dataclasses.replace(scene, grid_spacing=60e-6))
+
+
+def run_kind(kind: str, n: int, verbose: bool = True) -> list[dict]:
+    rows = []
+    nperseg = default_nperseg(int(DURATION * FS))
+    for i, scene in enumerate(scenes(kind, n)):
+        rec = _simulate(scene)
+        t0 = time.perf_counter()
+        res = fit_recording(rec, FitOptions())
+        t1 = time.perf_counter()
+        x = np.asarray(rec.signals, float)
+        sp = scipy_reference.fit_record(x, FS, rec.depths[0], rec.depths[1], nperseg)
+        t2 = time.perf_counter()
+        vx, vy = (abs(v) for v in scene.velocity)
+        row = {"kind": kind, "i": i, "vx_true": vx, "vy_true": vy, "a_true": scene.a, "speed": float(np.hypot(vx, vy)),
+               "snr_db": scene.snr_db, "texture": type(scene.texture).__name__, "fit_s": t1 - t0, "scipy_s": t2 - t1,
+               **{k: getattr(res, k) for k in ("status", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi",
+                                               "message")},
+               "scipy": dict(zip(("vx", "vx_err", "vy", "vy_err", "a", "a_err"),
+                                 (None if not np.isfinite(v) else float(v) for v in sp)))}
+        rows.append(row)
+        if verbose:
+            def f(v, s=100.0):
+                return "  -  " if v is None else f"{s * v:.3f}"
+            print(f"{kind:11s} {i:3d} v=({100 * vx:.2f}, {100 * vy:.2f}) a={1e3 * scene.a:.2f} | {row['status']:13s} "
+                  f"vx {f(row['vx'])}+/-{f(row['vx_err'])} vy {f(row['vy'])}+/-{f(row['vy_err'])} "
+                  f"a {f(row['a'], 1e3)}+/-{f(row['a_err'], 1e3)} chi2r {row['redchi'] or 0:.2f} "
+                  f"{row['fit_s']:.1f}s", flush=True)
+    return rows
+
+
+def _dev(r, name, src=None):
+    src = r if src is None else src
+    if src.get(name) is None:
+        return None
+    return abs(src[name] - r[name + "_true"])
+
+
+def summarize(rows: list[dict]) -> dict:
+    n = len(rows)
+    ok = [r for r in rows if r["status"] == "ok"]
+    out = {"n": n, "status": dict(collections.Counter(r["status"] for r in rows)), "ok_share": len(ok) / n if n else None}
+
+    def share(pred, pool):
+        return float(np.mean([pred(r) for r in pool])) if pool else None
+
+    out["both_speeds_3pct_ok"] = share(lambda r: all(_dev(r, k) is not None and _dev(r, k) <= 0.03 * r["speed"]
+                                                     for k in ("vx", "vy")), ok)
+    out["a_5pct_ok"] = share(lambda r: _dev(r, "a") is not None and _dev(r, "a") <= 0.05 * r["a_true"], ok)
+    for name in ("vx", "vy", "a"):
+        pool = [r for r in ok if r[name] is not None and r[name + "_err"]]
+        out[name + "_cover1_ok"] = share(lambda r: _dev(r, name) <= r[name + "_err"], pool)
+
+    def wrong(r):
+        return r["status"] == "ok" and any(r[k] is not None and r[k + "_err"] and _dev(r, k) > 3 * r[k + "_err"]
+                                           for k in ("vx", "vy", "a"))
+    out["confident_wrong_share"] = share(wrong, rows)
+    out["fit_s_median"] = float(np.median([r["fit_s"] for r in rows[1:]] or [rows[0]["fit_s"]])) if rows else None
+    sp = [r for r in rows if r["scipy"]["vx"] is not None and r["scipy"]["vy"] is not None]
+    out["scipy_both_speeds_3pct"] = share(lambda r: all(_dev(r, k, r["scipy"]) <= 0.03 * r["speed"]
+                                                        for k in ("vx", "vy")), sp)
+    out["scipy_s_median"] = float(np.median([r["scipy_s"] for r in rows])) if rows else None
+    return out
+
+
+def _pct(x):
+    return "-" if x is None else f"{100 * x:.0f} %"
+
+
+def table(summary: dict) -> str:
+    lines = ["| texture | scenes | statuses | both speeds within 3 % (ok rows) | a within 5 % (ok) | 1-sigma cover "
+             "vx / vy / a (ok) | confident wrong (all scenes) | fit s | scipy: both speeds within 3 % |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for kind, s in summary.items():
+        st = ", ".join(f"{k} {v}" for k, v in sorted(s["status"].items()))
+        cover = " / ".join(_pct(s[k + "_cover1_ok"]) for k in ("vx", "vy", "a"))
+        lines.append(f"| {kind} | {s['n']} | {st} | {_pct(s['both_speeds_3pct_ok'])} | {_pct(s['a_5pct_ok'])} | "
+                     f"{cover} | {_pct(s['confident_wrong_share'])} | {s['fit_s_median']:.2f} | "
+                     f"{_pct(s['scipy_both_speeds_3pct'])} |")
+    return "\n".join(lines)
+
+
+def figure(summary: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tactile_jax.plotting import provenance
+
+    kinds = list(summary)
+    x = np.arange(len(kinds))
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    bars = (("ok_share", "status ok"), ("both_speeds_3pct_ok", "both speeds within 3 % (ok rows)"),
+            ("confident_wrong_share", "confident wrong (> 3 sigma, ok)"))
+    for j, (key, label) in enumerate(bars):
+        ax.bar(x + (j - 1) * 0.27, [summary[k][key] or 0.0 for k in kinds], 0.27, label=label)
+    ax.set_xticks(x, kinds)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("share of scenes")
+    ax.legend(fontsize=7)
+    ax.set_title("default fit per texture kind (16 s, oblique slips, a 0.8-3 mm, 40-50 dB)", fontsize=9)
+    fig.text(0.01, 0.01, provenance(), fontsize=6, color="0.4")
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated subset of {','.join(KINDS)}")
+    ap.add_argument("--scenes", type=int, default=20, help="scenes per kind")
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
+    args = ap.parse_args(argv)
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or args.scenes < 1:
+        raise SystemExit(f"error: unknown kinds {bad} (expected {', '.join(KINDS)}) or --scenes < 1")
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = {k: run_kind(k, args.scenes) for k in kinds}
+    summary = {k: summarize(r) for k, r in rows.items()}
+    import jaxlib
+
+    machine = (f"{platform.machine()}, {platform.system()}, Python {platform.python_version()}, jax {jax.__version__} "
+               f"(jaxlib {jaxlib.__version__}), numpy {np.__version__}")
+    text = table(summary)
+    print(f"\nmachine: {machine}\n\n{text}")
+    (args.out / "textures.json").write_text(json.dumps({"machine": machine, "summary": summary, "rows": rows},
+                                                       indent=1, default=str))
+    figure(summary, args.out / "textures.png")
+    print(f"\nwrote {args.out / 'textures.json'} and {args.out / 'textures.png'}")
+
+
+if __name__ == "__main__":
+    main()
