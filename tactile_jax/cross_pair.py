@@ -7,7 +7,7 @@ pairs were independent counts those modes twice and leaves out how the two
 pairs share them, which depends on (vx, vy, a).
 
 The four channels' likelihood factors exactly as p(x1, x2) p(y1 | x1, x2)
-p(y2 | x1, x2, y1). ``joint_model`` fits the x pair as before and, per bin, a
+p(y2 | x1, x2, y1). The joint fit (``joint.residuals``) fits the x pair and, per bin, a
 regression of each y channel on the channels before it (Bendat & Piersol's
 conditioned spectra, ch. 7):
 
@@ -29,7 +29,7 @@ nothing, beta is 0 and S_t.u the channel's own PSD: the block reduces to the
 y pair's PSD that it replaces.
 
 This module holds the measured side (jnp, any leading axes); the model side is
-``joint_model``'s.
+``joint.model``'s.
 """
 
 from __future__ import annotations

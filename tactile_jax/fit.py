@@ -151,9 +151,9 @@ class FitResult:
     their diagnostics (segments, per-parameter variance ratios).
     ``cross_pairs``: how many blocks of the y pair's chain on the x pair the fit used
     (``FitOptions.cross_pairs``; 0 where the spectra have no x-y entries). ``converged``: the
-    solver reported success, or a full Gauss-Newton step would move every physical parameter by
-    less than ``lsq.STEP_TOL`` sigma, or 256 more Dogleg steps moved each by less than that
-    (a warning then says that texture knots were still moving).
+    last solve's Gauss-Newton decrement is negligible, or a full Gauss-Newton step would move every
+    physical parameter by less than ``joint.core.STEP_TOL`` sigma (the message then says that texture
+    knots were still moving); a fit that has not settled gets up to 3 more solves of the same program.
     """
 
     vx: float | None = None

@@ -57,7 +57,7 @@ def _value_and_jac(residuals, theta, args, free, value_and_jac=None):
     return r, jac * free[None, :]
 
 
-def _damped_step(r, jac, free, lam):
+def damped_step(r, jac, free, lam):
     """The Marquardt step (J^T J + lam diag(J^T J)) delta = -J^T r, zero on fixed entries; and J^T r, J^T J."""
     g = jac.T @ r
     a = jac.T @ jac
@@ -86,7 +86,7 @@ def iterate(residuals, theta0, args, free, n_iter, lam0, value_and_jac=None, max
     def body(i, carry):
         theta, r, jac, cost, lam, nu, last_step, n_acc = carry
         start = i == 0
-        delta, g, _ = _damped_step(r, jac, free, lam)
+        delta, g, _ = damped_step(r, jac, free, lam)
         # no parameter moves by more than max_step per iteration (log space: a factor e): a nearly flat
         # direction (a speed or radius the data cannot bound) is not jumped onto a far plateau
         delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), tiny(delta)))

@@ -114,8 +114,8 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
 
 def _optimistix_solver(name: str, rtol, atol):
     if name == DOGLEG:
-        # A rescue for LM stopped at max_steps in a curved valley (``fit._rescue``): on coverage scene 4
-        # redrawn, LM gained < 1.7 chi2 in 512 steps from its stopping point where Dogleg converged in 48
+        # for an LM stopped at max_steps in a curved valley: on one coverage scene LM gained < 1.7 chi2 in
+        # 512 steps from its stopping point where Dogleg converged in 48
         return optx.Dogleg(rtol=rtol, atol=atol)
     # The damped step solved by Cholesky on the normal equations, not optimistix's default QR of the
     # stacked [J; sqrt(lambda) I]: the same minimum (53 vs 60 steps), but 3.8x less time per step on the joint

@@ -112,8 +112,8 @@ class CrossSpectra(NamedTuple):
         bin_corr: ``(rho_1, rho_2, ...)`` the correlations of white-noise
             estimates 1, 2, ... bins apart, to the first below 1e-3 (Hann Welch:
             0.444, 0.028). With a coherent pair and noise on the deep probe they
-            are those of the log ratio's errors too (``crb.pair_crb``;
-            benchmarks/README.md, "Session 9"). A tuple of Python floats; ()
+            are those of the log ratio's errors too
+            (``tests/test_spectra.py``). A tuple of Python floats; ()
             for spectra read from a file.
         xy: ``(..., 4, M)`` complex cross-spectral densities ``E[conj(X_i) Y_j]``
             between the pairs, in the order (x1 y1, x1 y2, x2 y1, x2 y2),

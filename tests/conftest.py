@@ -3,8 +3,8 @@
 Every joint fit runs one compiled program (``joint.core``: its inputs have one shape whatever the
 recording), so the suite pays its compilation once. The modules run in parallel (pytest-xdist,
 ``--dist loadgroup`` in pyproject.toml): every module that runs the joint pipeline goes to one worker
-(``JOINT_MODULES``), each other module's tests to one process so that they share its fixtures, and
-the processes share one compilation cache per run (below).
+(``JOINT_MODULES``), a module with costly fixtures to one worker, the other tests one by one, and the
+processes share one compilation cache per run (below).
 """
 
 import os
@@ -12,6 +12,7 @@ import os
 # not the user's cache: importing tactile_jax.cli would switch on ~/.cache/tactile_jax for the whole run
 os.environ["TACTILE_JAX_CACHE"] = ""
 
+import contextlib  # noqa: E402
 import shutil  # noqa: E402
 import tempfile  # noqa: E402
 import uuid  # noqa: E402
@@ -25,7 +26,9 @@ jax.config.update("jax_enable_x64", True)
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
 _CACHE_DIR = os.path.join(tempfile.gettempdir(), f"tactile_jax_tests_{_RUN}", "jax")
 jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+# only programs worth sharing between the workers (the pipeline's take seconds): caching every eager
+# operation's tiny program costs more disk writes than it saves
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 
 def pytest_configure(config):
@@ -52,8 +55,33 @@ JOINT_MODULES = {"test_fit.py", "test_batch.py", "test_fit_cli.py", "test_model_
                  "test_examples.py", "test_stability.py", "test_reproduce.py"}
 
 
+#: modules whose module-scoped fixtures take seconds: each runs on one worker, so that they are built once
+FIXTURE_MODULES = {"test_leakage.py", "test_posterior.py", "test_pair_fit.py"}
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
+    """The joint modules go to one worker, each module of ``FIXTURE_MODULES`` to one; every other test is
+    scheduled alone, so that the workers finish together."""
     for item in items:
         name = item.path.name
-        item.add_marker(pytest.mark.xdist_group("joint" if name in JOINT_MODULES else name))
+        if name in JOINT_MODULES:
+            item.add_marker(pytest.mark.xdist_group("joint"))
+        elif name in FIXTURE_MODULES:
+            item.add_marker(pytest.mark.xdist_group(name))
+
+
+@contextlib.contextmanager
+def compilations():
+    """Collects the XLA backend compilations (their events) made inside the block, in the yielded list."""
+    events = []
+
+    def listen(event, duration, **_):
+        if event.endswith("backend_compile_duration"):
+            events.append(event)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield events
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)

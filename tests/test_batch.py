@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from jax.experimental.compilation_cache import compilation_cache
 
+from conftest import compilations
 from tactile_jax.batch import run_batch
 from tactile_jax.fit import FitOptions
 from tactile_jax.io import write_recording
@@ -101,17 +102,8 @@ def test_resume_skips_done_rows_and_redoes_transient(local_run, dataset, tmp_pat
         if (r["file"], int(r["index"])) == (multi, 2):
             r.update(status="worker_error", vx=None)            # a transient failure: redone
     out.write_text(json.dumps(partial))
-    events = []
-
-    def listen(event, duration, **_):
-        if event.endswith("backend_compile_duration"):
-            events.append(event)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compilations() as events:
         summary = run_batch([dataset], out, chunk_size=8, progress=False)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert summary.n_fitted == 2 and summary.n_skipped == 6
     assert events == []                                                  # no new compilation
     again = _by_key(read_results(out))

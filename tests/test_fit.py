@@ -6,10 +6,10 @@ A small seeded version of benchmarks/coverage.py; every fit shares the one compi
 
 import dataclasses
 
-import jax
 import numpy as np
 import pytest
 
+from conftest import compilations
 from tactile_jax.errors import TactileInputError
 from tactile_jax.fit import FitOptions, fit_recording, fit_spectra, result_from_summary
 from tactile_jax.io import read_spectra, write_recording
@@ -71,19 +71,10 @@ def test_fit_and_batch_run_the_same_program(oblique):
 
 def test_new_recording_shapes_do_not_compile_again(oblique):
     """Another length, another Welch segment, another band: the same compiled program."""
-    events = []
-
-    def listen(event, duration, **_):
-        if event.endswith("backend_compile_duration"):
-            events.append(event)
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        short = simulate(_scene(0.03, 0.01, 1.5e-3, seed=5, duration=8.0, snr=45.0))
+    short = simulate(_scene(0.03, 0.01, 1.5e-3, seed=5, duration=8.0, snr=45.0))
+    with compilations() as events:
         res = fit_recording(short, FitOptions(nperseg=512))
         res2 = fit_recording(short)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert res.status in ("ok", "poor_fit") and res2.status in ("ok", "poor_fit")
     assert events == []
 

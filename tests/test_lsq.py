@@ -75,8 +75,9 @@ def test_a_fixed_parameter_has_no_step(problem):
     assert float(res.step_sigma[1]) == 0.0 and np.isfinite(float(res.step_sigma[0]))
 
 
+@pytest.mark.slow
 def test_dogleg_goes_on_from_a_capped_solve_to_the_same_optimum(problem):
-    """``DOGLEG`` (fit._rescue's solver) from where a capped LM stopped reaches LM's own optimum."""
+    """``DOGLEG`` from where a capped LM stopped reaches LM's own optimum."""
     args, theta0 = problem
     free = jnp.array([True, True])
     best = least_squares(_decay, jnp.asarray(theta0), args, free)

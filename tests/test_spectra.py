@@ -173,6 +173,7 @@ def test_multitaper_matches_numpy_reference():
     np.testing.assert_allclose(mt.csd, csd, rtol=1e-10, atol=1e-13 * np.max(np.abs(csd)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["welch", "multitaper"])
 def test_amplitude_ratio_recovers_gain_with_calibrated_errors(method):
     rng = np.random.default_rng(7)
@@ -323,6 +324,7 @@ def test_burg_recovers_ar2_and_prewhitening_keeps_ratio():
     assert err.value.code == "too_short"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["welch", "multitaper"])
 def test_leave_one_out_spectra_average_to_the_estimate(method):
     x = np.random.default_rng(8).standard_normal((4, 2048))
@@ -366,9 +368,10 @@ def test_neighbour_selection_removes_the_band_edge_selection_bias():
         usable_band(ratio, neighbours=-1)
 
 
+@pytest.mark.slow
 def test_bin_corr_is_the_log_ratios_neighbour_correlation():
     """``CrossSpectra.bin_corr`` (Hann Welch: 4/9, 1/36) is the correlation of the log ratio's errors
-    between neighbouring bins for a coherent pair with noise on the deep probe (``crb.pair_crb``)."""
+    between neighbouring bins for a coherent pair with noise on the deep probe."""
     rng = np.random.default_rng(3)
     n, gain = 128_000, 0.3
     x1 = rng.standard_normal((2, n))
@@ -386,6 +389,7 @@ def test_bin_corr_is_the_log_ratios_neighbour_correlation():
     assert len(taper.bin_corr) > 2 and taper.bin_factor == pytest.approx(1 + 2 * sum(taper.bin_corr), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_errors_from_the_neighbours_do_not_weight_the_ratio_up():
     """A bin's own coherence rises with its own |S12|, so inverse-variance weights from it favour the
     bins whose log ratio came out high; weights from the neighbours' coherence do not."""

@@ -24,19 +24,9 @@ import jax
 import jax.numpy as jnp
 
 from .._numerics import tiny
+from ..gauss_newton import damped_step
 
 __all__ = ["levenberg_marquardt"]
-
-
-def _step(r, jac, free, lam):
-    g = jac.T @ r
-    a = jac.T @ jac
-    diag = jnp.clip(jnp.diag(a), tiny(a), None)
-    both = free[:, None] & free[None, :]
-    eye = jnp.eye(a.shape[0], dtype=a.dtype)
-    a_damped = jnp.where(both, a + lam * eye * diag[:, None], eye)
-    delta = jnp.linalg.solve(a_damped, jnp.where(free, -g, 0.0)[:, None])[:, 0]
-    return jnp.where(free, delta, 0.0), g
 
 
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first: int, n_final: int,
@@ -72,7 +62,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first
         restart = jnp.where(k == explore, best[0], starts[jnp.minimum(k // n_start, n_starts - 1)])
         mask = jnp.where(exploring & (local < n_first), first, free)
         jm = jac * mask
-        delta, g = _step(r, jm, mask, lam)
+        delta, g, _ = damped_step(r, jm, mask, lam)
         delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), tiny(delta)))
         trial = jnp.where(fresh, jnp.where(i == 0, starts[0], restart), theta + delta)
         r_t, j_t, aux_t = value_and_jac(trial)
