@@ -271,9 +271,9 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         t1 = time.perf_counter()
         try:
             summaries = [settle(r, settings, s)[0] for r, s in zip(recs, run.fit_many(recs, settings, size))]
-            for (p, src, i), s, (vel, radius) in zip(good, summaries, metas):
+            for (p, src, i), r, s, (vel, radius) in zip(good, recs, summaries, metas):
                 res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
-                                          model=model_name(s.free, vel is not None))
+                                          model=model_name(s.free, vel is not None), segments=r.seg)
                 res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
                 rows[p] = res.to_record()
         except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume

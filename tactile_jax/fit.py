@@ -28,6 +28,7 @@ from . import model_select
 from .errors import TactileInputError
 from .joint import run
 from .joint.core import STATUS, STEP_TOL, Record, Settings, Summary
+from .joint.diagnose import no_band_reason
 from .joint.model import N_PHYS, param_names
 from .joint.residuals import residuals as joint_residuals
 from .pair_fit import fit_pair
@@ -451,7 +452,7 @@ def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius
         _, s, margin = chosen
     model = model_select.model_name(s.free, options.velocity is not None)
     res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
-                              window_weak=window_weak)
+                              window_weak=window_weak, segments=refit.rec.seg)
     res.model_margin = margin
     _profiles(res, s, options, refit)
     if note and note.startswith("model "):
@@ -502,9 +503,10 @@ def _select(refit: _Refitter, s: Summary, options: FitOptions):
 
 def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, model: str = "joint",
                         window_weak: bool = False, solver: str = "levenberg-marquardt, 3 starts", file=None,
-                        index: int = 0) -> FitResult:
+                        index: int = 0, segments=None) -> FitResult:
     """A ``FitResult`` from one record's ``joint.core.Summary`` (numpy): the values, errors, status and
-    message that ``fit`` and ``batch`` both report."""
+    message that ``fit`` and ``batch`` both report. ``segments``: the record's ``Segments``, which say
+    what a record without a usable band holds instead (``joint.diagnose``)."""
     res = FitResult(model=model, solver=solver, file=file, index=index)
     theta, free = np.asarray(s.theta), np.asarray(s.free, bool)
     status = STATUS[int(s.status)]
@@ -519,6 +521,8 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     if status == "no_band":
         res.message = (f"only {res.n_bins} usable bins (coherent, deep probe above noise, not leakage): too few to "
                        "fit; check the gains, the SNR or the band limits")
+        if segments is not None:
+            res.message += "; " + no_band_reason(segments)
         return res
     if status == "failed":
         res.message = "the fit produced non-finite values"

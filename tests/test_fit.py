@@ -17,7 +17,7 @@ from tactile_jax.joint import run
 from tactile_jax.joint.core import Settings
 from tactile_jax.recording import Recording
 from tactile_jax.scene import Scene, simulate
-from tactile_jax.texture import RandomTexture
+from tactile_jax.texture import Grating, RandomTexture
 
 
 def _scene(vx, vy, a, seed, snr=50.0, duration=16.0):
@@ -102,6 +102,18 @@ def test_no_band_is_reported_not_raised():
     rec = Recording(rng.standard_normal((4, 16000)), 1000.0, (0.265e-3, 0.925e-3), source="noise.h5")
     res = fit_recording(rec)
     assert res.status == "no_band" and "usable bins" in res.message and res.vx is None
+    assert "no coherent texture line or band" in res.message
+
+
+def test_a_grating_is_named_as_lines_not_fitted():
+    scene = Scene(texture=Grating(pitch=2e-3, angle=0.5), velocity=(0.03, 0.02), contact_radius=1.5e-3,
+                  duration=4.0, snr_db=50.0, seed=1)
+    res = fit_recording(simulate(scene))
+    line_hz = 2 * np.pi / 2e-3 * (0.03 * np.cos(0.5) + 0.02 * np.sin(0.5)) / (2 * np.pi)     # k . v / 2 pi
+    assert res.status == "no_band" and res.vx is None
+    assert "deep x probe holds 1 coherent line" in res.message and "periodic texture" in res.message
+    hz = float(res.message.split("strongest at ")[1].split(" Hz")[0])
+    assert abs(hz - line_hz) < 2.5, (hz, line_hz)          # the nearest 3.9 Hz bin of a 4 s record
 
 
 def test_bad_input_raises_one_line_naming_the_source():
