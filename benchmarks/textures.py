@@ -17,7 +17,7 @@ kind: statuses; over the ``ok`` rows, both speeds within 3 % of |v|, a within
 confident wrong answer (status ``ok`` and some reported value more than 3 of
 its sigmas from the truth). Times are medians per record after compilation.
 
-    python benchmarks/textures.py --scenes 20 --out benchmarks/out
+    python benchmarks/textures.py --scenes 50 --out benchmarks/out     # ~25 min on 2 cores
     python benchmarks/textures.py --kinds directional,modes --scenes 50 --out /tmp/tex
 """
 
