@@ -177,15 +177,6 @@ def _read_records(info: _FileInfo, start: int, stop: int) -> np.ndarray:
     return sig[None] if not info.multi else sig[start:stop]
 
 
-def _gains(info: _FileInfo, options: FitOptions) -> tuple[float, float]:
-    """(gx, gy): the options' known gain ratios, else the file's, else 1 (as ``fit``)."""
-    from .fit import _gains as known_gains
-
-    if options.gain_ratio is None:
-        options = dataclasses.replace(options, gain_ratio=info.gain_ratio)
-    return known_gains(options)
-
-
 def _error_row(src: str, index: int, code: str, message: str, model: str) -> dict:
     row = dict.fromkeys(RESULT_FIELDS)
     row.update(file=src, index=int(index), converged=False, status=code, message=message, model=model)
@@ -228,7 +219,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     if cache_dir and not jax.config.jax_compilation_cache_dir:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    from .fit import result_from_summary, settings_of, settle
+    from .fit import _options_from_file, record_of, result_from_summary, settings_of, settle
     from .joint import run
     from .model_select import model_name
     from .recording import Recording, validate_recording
@@ -250,14 +241,13 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
             continue
         t1 = time.perf_counter()
         timings["read"] += t1 - t0
+        file_options = _options_from_file(options, info)          # the file's known velocity and gains
+        vel = file_options.velocity
         for k, i in enumerate(range(start, stop)):
             src = f"{info.path} [record {i}]" if info.multi else info.path
-            vel = options.velocity if options.velocity is not None else info.velocity
             try:
                 validate_recording(Recording(block[k], info.fs, info.depths, source=src))
-                recs.append(run.record(np.asarray(block[k], float), info.fs, info.depths, gains=_gains(info, options),
-                                       velocity=vel, method=options.method, nperseg=options.nperseg,
-                                       prewhiten=options.prewhiten, settings=settings, source=src))
+                recs.append(record_of(block[k], info.fs, info.depths, file_options, source=src))
             except TactileInputError as err:
                 err = err.with_source(src)
                 rows[pos + k] = _error_row(info.path, i, err.code, str(err), model)

@@ -363,6 +363,14 @@ def _fmt_speed(v):
 # --------------------------------------------------------------------------- entry points
 
 
+def record_of(signals, fs, depths, options: FitOptions, *, source=None) -> Record:
+    """The pipeline's ``Record`` of one recording (4, N) under ``options`` (spectral estimator, known gains
+    and velocity): what ``fit`` and ``batch`` fit. Raises ``TactileInputError`` for settings it cannot meet."""
+    return run.record(np.asarray(signals, float), float(fs), depths, gains=_gains(options), velocity=options.velocity,
+                      method=options.method, nperseg=options.nperseg, prewhiten=options.prewhiten,
+                      settings=settings_of(options), source=source)
+
+
 def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record: int = 0) -> FitResult:
     """Fit one record of a recording. Raises ``TactileInputError`` for bad input."""
     validate_recording(rec)
@@ -374,9 +382,7 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
     if options.model == "hertz":
         return _fit_hertz(one, options, src, record, precision)
     try:
-        r = run.record(np.asarray(one.signals, float), float(one.fs), one.depths, gains=_gains(options),
-                       velocity=options.velocity, method=options.method, nperseg=options.nperseg,
-                       prewhiten=options.prewhiten, settings=settings_of(options), source=src)
+        r = record_of(one.signals, one.fs, one.depths, options, source=src)
     except TactileInputError as err:
         raise err.with_source(src) from None
     res = fit_record(r, options, curvature_radius=one.curvature_radius)

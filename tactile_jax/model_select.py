@@ -166,8 +166,7 @@ def select(summary, free, refit, options, *, bin_factor: float = 1.0) -> Selecti
     margin = float(cands[1].bic - best.bic) if len(cands) > 1 else None
     note = (f"model {best.name} chosen by BIC (margin {margin:.1f} over {cands[1].name}; "
             + ", ".join(f"{c.name} {c.bic - best.bic:+.1f}" for c in cands[1:]) + ")") if margin is not None else ""
-    chosen_free = free if best.fit is None else best.free
-    return Selection(best.name, best.fit, chosen_free, margin, tuple(cands), note)
+    return Selection(best.name, best.fit, best.free, margin, tuple(cands), note)
 
 
 def window_needed(summary, free, refit_chi2) -> tuple[bool, str]:

@@ -61,9 +61,9 @@ def test_kernel_log_weights_flat_and_weighted():
 
 
 def test_the_joint_pipelines_pair_starts_are_pair_fits_model(exact_ratio):
-    """The joint pipeline starts from each pair fitted alone (``joint.core._pair_residuals``, the flat
-    spectral window on the fixed kernel grid): the same residuals as ``pair_fit``'s."""
-    from tactile_jax.joint.core import _pair_residuals as core_pair
+    """The joint pipeline starts from each pair fitted alone with ``pair_fit``'s residuals, given the flat
+    spectral window on the fixed kernel grid (zero weights as -2e4 in log): the same residuals as with the
+    window's own support."""
     from tactile_jax.joint.segments import KERNEL_OFFSETS
 
     y, err, mask = exact_ratio
@@ -74,6 +74,6 @@ def test_the_joint_pipelines_pair_starts_are_pair_fits_model(exact_ratio):
     w = np.full(KERNEL_OFFSETS.size, -2e4)
     for o, v in zip(off, lw):
         w[int(round((o - KERNEL_OFFSETS[0]) * 2))] = v
-    got = np.asarray(core_pair(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
-                                       D1, D2, OMEGA[1] - OMEGA[0], jnp.asarray(w))))
+    got = np.asarray(_residuals(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
+                                        D1, D2, jnp.asarray(KERNEL_OFFSETS), jnp.asarray(w))))
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)

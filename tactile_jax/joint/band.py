@@ -20,11 +20,9 @@ import jax.numpy as jnp
 
 from .._numerics import tiny
 from ..closed_form import dominant_wavenumber, radius_from_offset, slope_speed
+from ..spectra import _COHERENCE_ALPHA, _log_ratio_err, _neighbour_mean
 
-__all__ = ["Spectra", "Band", "spectra", "select"]
-
-_COHERENCE_ALPHA = 0.01        # family-wise significance of the zero-coherence test over the grid
-
+__all__ = ["Spectra", "Band", "spectra", "coherence", "select"]
 
 class Spectra(NamedTuple):
     """Averaged spectra on the grid: psd (4, M), csd (2, M) and xy (4, M) complex, omega (M,) rad/s,
@@ -69,19 +67,11 @@ def spectra(seg) -> Spectra:
                    jnp.arange(m) < seg.n_valid, seg.dof)
 
 
-def _neighbour_mean(x, ok, n: int):
-    """Mean of x over the n bins on each side of each bin (itself excluded) where ``ok``; (..., M)."""
-    kernel = jnp.ones(2 * n + 1, x.dtype).at[n].set(0.0)
-    conv = jax.vmap(lambda v: jnp.convolve(v, kernel, mode="same"))
-    total = conv(jnp.where(ok, x, 0.0))
-    count = conv(ok.astype(x.dtype))
-    return jnp.where(count > 0, total / jnp.where(count > 0, count, 1.0), 0.0)
-
-
-def _log_ratio_err(g2, dof):
-    has = g2 > 0
-    g2s = jnp.where(has, g2, 1.0)
-    return jnp.where(has, jnp.sqrt(jnp.clip(1.0 - g2s, 0.0, None) / (2.0 * dof * g2s)), jnp.inf)
+def coherence(spec: Spectra):
+    """Each pair's magnitude-squared coherence |S12|^2 / (S11 S22): (2, M), 0 where a PSD is 0."""
+    s11, s22 = spec.psd[0::2], spec.psd[1::2]
+    both = (s11 > 0) & (s22 > 0)
+    return jnp.where(both, jnp.square(jnp.abs(spec.csd)) / jnp.where(both, s11 * s22, 1.0), 0.0)
 
 
 def leakage_only(psd, half_width: int = 3, drop_db=20.0):
@@ -134,14 +124,13 @@ def select(spec: Spectra, depths, log_gains, *, min_snr, max_err, fmin, fmax, le
     depths: (2,) m. log_gains: (2,) log deep/shallow gain ratios of the pairs (known or 0).
     min_snr, max_err, fmin, fmax (Hz), leakage_db: ``fit.FitOptions``'s band settings (data).
     """
-    s11, s22 = spec.psd[0::2], spec.psd[1::2]
+    s11 = spec.psd[0::2]
     mag = jnp.abs(spec.csd)
     ok = (mag > 0) & (s11 > 0) & spec.valid
     log_ratio = jnp.where(ok, jnp.log(jnp.where(ok, mag, 1.0)) - jnp.log(jnp.where(ok, s11, 1.0)), -jnp.inf)
-    both = (s11 > 0) & (s22 > 0)
-    g2 = jnp.where(both, jnp.square(mag) / jnp.where(both, s11 * s22, 1.0), 0.0)
+    g2 = coherence(spec)
     live = spec.valid & (spec.omega > 0)
-    g2_nb = _neighbour_mean(g2, jnp.broadcast_to(live, g2.shape), neighbours)
+    g2_nb = _neighbour_mean(jnp.where(live, g2, jnp.nan), neighbours)           # the live bins' neighbours'
     err = _log_ratio_err(g2_nb, spec.dof)
     n_bins = jnp.maximum(jnp.sum(live), 1)
     significance = 1.0 - (_COHERENCE_ALPHA / n_bins) ** (1.0 / jnp.maximum(spec.dof - 1.0, 1e-3))
@@ -162,14 +151,6 @@ def select(spec: Spectra, depths, log_gains, *, min_snr, max_err, fmin, fmax, le
     i0 = jnp.clip(jnp.where(first < m, first, 1), 1, m - n_fit)
     return Band(log_ratio, err, g2, band, band.sum(-1), speed0, jnp.where(jnp.isfinite(speed0), a0, jnp.nan), k0,
                 i0, n_leak)
-
-
-def conditioned(spec: Spectra):
-    """Each pair's conditioned deep PSD S22 - |S12|^2 / S11: (2, M), 0 where S11 is 0."""
-    s11, s22 = spec.psd[0::2], spec.psd[1::2]
-    ok = s11 > 0
-    c22 = s22 - jnp.square(jnp.abs(spec.csd)) / jnp.where(ok, s11, 1.0)
-    return jnp.where(ok & jnp.isfinite(c22), c22, 0.0)
 
 
 def noise_floors(spec: Spectra):

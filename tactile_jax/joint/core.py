@@ -35,8 +35,9 @@ from jax.scipy.special import digamma
 from .._numerics import tiny
 from ..gauss_newton import gauss_newton
 from ..lsq import equilibrated_inverse, fit_statistics
-from ..r_curve import log_g, log_r_exact
-from jax.scipy.special import logsumexp
+from ..pair_fit import _residuals as pair_residuals
+from ..prewhiten import filter_response
+from ..r_curve import log_g
 from . import band as band_mod
 from .data import N_FIT, JointData, grid_offsets, measure
 from .model import N_PHYS, ModelSpectra, spectra_at_bins
@@ -141,11 +142,6 @@ def _window(x, i0):
     return jax.lax.dynamic_slice(x, start, x.shape[:-1] + (N_FIT,))
 
 
-def _filter_response(coeffs, omega, fs):
-    k = jnp.arange(coeffs.shape[-1])
-    return jnp.einsum("pk,mk->pm", coeffs.astype(complex), jnp.exp(-1j * jnp.outer(omega / fs, k)))
-
-
 def _log_kernel(kernel):
     return jnp.where(kernel > 0, jnp.log(jnp.clip(kernel, tiny(kernel), None)), -2e4)
 
@@ -162,24 +158,16 @@ def _knot_start(log_k_obs, phi_obs, sel, log_knots):
     return jnp.where(sw_near > 1e-6, near, far)
 
 
-def _pair_residuals(theta, args):
-    """One pair's exact-R model (Eq. 23) averaged over the spectral window, against its log ratio."""
-    omega, y, err, mask, d1, d2, d_omega, log_w = args
-    om = jnp.abs(omega[:, None] + jnp.asarray(KERNEL_OFFSETS, omega.dtype) * d_omega)
-    log_r = log_r_exact(om / jnp.exp(theta[0]), d1, d2, jnp.exp(theta[1]))
-    model = logsumexp(log_r + log_w, axis=-1) + theta[2]
-    return jnp.where(mask, (jnp.where(mask, y, 0.0) - model) / jnp.where(mask, err, 1.0), 0.0)
-
-
-def _pair_fits(om, log_ratio, err, band, depths, log_gains, speed0, a0, log_kernel, d_omega, fit_gain):
+def _pair_fits(om, log_ratio, err, band, depths, log_gains, speed0, a0, log_kernel, fit_gain):
     """Each pair alone with the exact R curve (the starts of the joint fit): (speed, a, a's relative error,
     usable) per pair. A pair that hears only window leakage (slip across it) has a flat ratio: its
     speed runs away or its fit does not settle, and it is not usable."""
     def one(y, e, m, g, v, a):
         theta0 = jnp.stack([jnp.log(v), jnp.log(a), g])
         free = jnp.array([True, True, False]) | (jnp.arange(3) == 2) & fit_gain
-        args = (om, y, e, m, depths[0], depths[1], d_omega, log_kernel)
-        fit = gauss_newton(_pair_residuals, theta0, args, free)
+        # pair_fit's exact-R model, averaged by the spectral window on the fixed kernel grid
+        args = (om, y, e, m, depths[0], depths[1], jnp.asarray(KERNEL_OFFSETS, om.dtype), log_kernel)
+        fit = gauss_newton(pair_residuals, theta0, args, free)
         sd = jnp.sqrt(jnp.clip(jnp.diag(fit.cov) * jnp.maximum(fit.redchi, 1.0) / jnp.maximum(fit.redchi, tiny(
             fit.redchi)), 0.0, None))
         speed = jnp.exp(fit.theta[0])
@@ -234,15 +222,15 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     # the prewhitening filters on the half-bin grid of the kernel and at the bins
     offsets = np.arange(-12, 2 * (N_FIT - 1) + 13) / 2.0
     half = d_omega * (i0 + offsets)
-    resp_h = _filter_response(seg.whitening, half, seg.fs)
-    resp_b = _filter_response(seg.whitening, om, seg.fs)
+    resp_h = filter_response(seg.whitening, half, seg.fs)
+    resp_b = filter_response(seg.whitening, om, seg.fs)
     d1 = depths[0]
 
     # ---- starting values: Eq. 6 speeds, Eq. 26 radius, texture knots from the faster pair's shallow spectrum
     known = record.known
     v_pair, a_pair, a_rel, have = _pair_fits(om, _window(b.log_ratio, i0), _window(b.err, i0), band_w, depths,
                                              log_gains, b.speed0, b.a0, data_kernel := _log_kernel(seg.kernel),
-                                             d_omega, settings.fit_gain)
+                                             settings.fit_gain)
     v_any = jnp.where(have.any(), jnp.max(jnp.where(have, v_pair, 0.0)), 0.02)
     v0 = jnp.where(known, record.velocity, jnp.where(have, v_pair, 0.05 * v_any))
     v_scale = jnp.maximum(jnp.max(v0), 1e-4)

@@ -1,4 +1,4 @@
-"""Why a record has no usable band: what its spectra hold instead (numpy, on ``Segments``).
+"""Why a record has no usable band: what its spectra hold instead (from its ``Segments``, after the fit).
 
 The joint model needs a broadband texture: runs of coherent bins where the
 deep probe stands above its noise. When the band selection finds too few, the
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import band
 from .segments import Segments
 
 __all__ = ["LINE_DB", "LINE_COHERENCE", "no_band_reason"]
@@ -36,17 +37,16 @@ def no_band_reason(seg: Segments) -> str:
     """One sentence on what the spectra of a record without a usable band hold (lines, or no coherent
     deep signal), naming the strongest line's frequency (Hz), height (dB) and coherence."""
     n = int(seg.n_valid)
-    total = np.maximum(np.asarray(seg.count, float).sum(), 1.0)
-    auto = np.asarray(seg.auto, float).sum(0)[:, 1:n] / total                  # (4, n - 1) from bin 1
-    csd = np.asarray(seg.csd).sum(0)[:, 1:n] / total                           # (2, n - 1)
-    hz = np.arange(1, n) * float(seg.d_omega) / (2.0 * np.pi)
+    spec = band.spectra(seg)
+    deep = np.asarray(spec.psd, float)[1::2, 1:n]                               # (2, n - 1) from bin 1
+    g2 = np.asarray(band.coherence(spec), float)[:, 1:n]
+    hz = np.asarray(spec.omega, float)[1:n] / (2.0 * np.pi)
     found = []
     for p, name in enumerate("xy"):
-        s11, s22 = auto[2 * p], auto[2 * p + 1]
+        s22, coh = deep[p], g2[p]
         pos = s22 > 0
         ref = np.median(s22[pos]) if pos.any() else 1.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            coh = np.where(s11 * s22 > 0, np.abs(csd[p]) ** 2 / (s11 * s22), 0.0)
+        with np.errstate(divide="ignore"):
             level = 10.0 * np.log10(np.where(pos, s22 / ref, 1.0))
         runs = _lines((level > LINE_DB) & (coh > LINE_COHERENCE))
         if runs:

@@ -4,7 +4,8 @@ Every program here is compiled once per process (and kept in the persistent
 cache where the caller enables one), whatever the recordings' lengths, segment
 lengths or band widths: their inputs have fixed shapes (``segments``). The
 single-record path and a batch call the same ``core``: ``fit`` jit-compiles it
-for one record, ``batch`` for a chunk (``jax.vmap``); what ``fit`` layers on
+for one record, ``batch`` runs that program record after record on a CPU and a
+vmapped one over a chunk on an accelerator; what ``fit`` layers on
 top (profiles, model selection, more iterations) runs through the same program
 from a given start (``refit``).
 """
@@ -64,8 +65,8 @@ def _source_key() -> str:
     root = Path(__file__).resolve().parent.parent
     h = hashlib.sha1(f"{jax.__version__} {jax.config.jax_enable_x64}".encode())
     for path in sorted(list((root / "joint").glob("*.py")) + [root / n for n in (
-            "r_curve.py", "cross_pair.py", "gauss_newton.py", "lsq.py", "closed_form.py", "_numerics.py",
-            "_quadrature.py")]):
+            "r_curve.py", "cross_pair.py", "gauss_newton.py", "lsq.py", "closed_form.py", "pair_fit.py",
+            "prewhiten.py", "spectra.py", "_numerics.py", "_quadrature.py")]):
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 

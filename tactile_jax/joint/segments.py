@@ -67,7 +67,10 @@ class Segments(NamedTuple):
 
 
 def burg_ar(x: np.ndarray, order: int) -> np.ndarray:
-    """Burg estimate of the AR error filter [1, a1, ..., ap] of ``x`` (N,); a silent channel gives [1, 0, ...]."""
+    """Burg estimate of the AR error filter [1, a1, ..., ap] of ``x`` (N,); a silent channel gives [1, 0, ...].
+
+    The numpy form of ``prewhiten.burg_ar``: run eagerly, the jnp one compiles its operations again for
+    every new recording length, which this stage must not."""
     x = np.asarray(x, float) - np.mean(x)
     ef, eb = x.copy(), x.copy()
     a = np.ones(1)
@@ -82,7 +85,8 @@ def burg_ar(x: np.ndarray, order: int) -> np.ndarray:
 
 
 def _response(coeffs, omega, fs):
-    """A(exp(i omega / fs)) of filters (..., p + 1) at omega (M,): (..., M) complex."""
+    """A(exp(i omega / fs)) of filters (..., p + 1) at omega (M,): (..., M) complex (numpy
+    ``prewhiten.filter_response``, for the same reason as ``burg_ar``)."""
     k = np.arange(coeffs.shape[-1])
     return coeffs @ np.exp(-1j * np.outer(k, omega / fs))
 
