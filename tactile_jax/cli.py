@@ -14,6 +14,7 @@ import sys
 import click
 import jax
 
+from ._optional import MissingExtra
 from .errors import TactileInputError
 
 # float64 is chosen here, at the entry point (the library never switches it on itself)
@@ -32,7 +33,7 @@ def _user_errors(fn):
     def wrapper(*args, **kwargs):
         try:
             return fn(*args, **kwargs)
-        except TactileInputError as err:
+        except (TactileInputError, MissingExtra) as err:
             click.echo(f"error: {err}", err=True)
             sys.exit(2)
         except OSError as err:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import secrets
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -33,6 +32,7 @@ from typing import Any, NamedTuple
 import h5py
 import numpy as np
 
+from ._atomic import atomic_write
 from .errors import TactileInputError
 from .recording import Recording, validate_recording
 
@@ -577,27 +577,15 @@ def _json_default(obj):
 
 
 def _atomic_write(path: Path, kind: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> Path:
-    """Write to a fresh temporary file next to ``path``, fsync, then ``os.replace`` it over ``path``."""
-    fd, tmp = _create_temp(path)
-    try:
+    """Write ``arrays`` and ``attrs`` as HDF5 or NPZ through the package's one atomic writer."""
+    def write(tmp):
         if kind == "npz":
-            with os.fdopen(fd, "wb") as fh:
+            with open(tmp, "wb") as fh:
                 _write_npz(fh, arrays, attrs)
-                fh.flush()
-                os.fsync(fh.fileno())
         else:
-            os.close(fd)
             _write_h5(tmp, arrays, attrs)
-            _fsync_file(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    _fsync_dir(path.parent)
-    return path
+
+    return atomic_write(path, write)
 
 
 def _write_h5(tmp: Path, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None:
@@ -615,39 +603,6 @@ def _write_npz(fh, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> None
     members = dict(arrays)
     members.update({k: np.asarray(v) for k, v in attrs.items()})  # a str becomes a 0-d unicode array
     np.savez(fh, **members)
-
-
-def _create_temp(path: Path) -> tuple[int, Path]:
-    """A new temporary file in ``path``'s directory (mode from the umask), hidden and ending in ``.tmp``."""
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-        try:
-            return os.open(tmp, flags, 0o666), tmp
-        except FileExistsError:  # pragma: no cover - 48 random bits
-            continue
-
-
-def _fsync_file(p: Path) -> None:
-    fd = os.open(p, os.O_RDONLY | getattr(os, "O_BINARY", 0))
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(d: Path) -> None:
-    """Make the rename durable where the platform allows it (best effort)."""
-    try:
-        fd = os.open(d, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 # --------------------------------------------------------------------------- small helpers

@@ -13,12 +13,12 @@ import io
 import json
 import math
 import os
-import secrets
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._atomic import atomic_write
 from .errors import TactileInputError
 
 __all__ = ["RESULT_SUFFIXES", "read_results", "result_columns", "write_results"]
@@ -122,43 +122,15 @@ def _write_parquet(path: Path, cols: list[str], table: list[dict]) -> Path:
     def write(tmp):
         pq.write_table(arrow, tmp)
 
-    return _atomic(path, write)
+    return atomic_write(path, write)
 
 
 def _atomic_bytes(path: Path, payload: bytes) -> Path:
     def write(tmp):
         with open(tmp, "wb") as fh:
             fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
 
-    return _atomic(path, write)
-
-
-def _atomic(path: Path, write) -> Path:
-    """``write(tmp)`` into a temporary file next to ``path``, then ``os.replace`` it over ``path``."""
-    folder = path.parent if str(path.parent) else Path(".")
-    folder.mkdir(parents=True, exist_ok=True)
-    tmp = _new_temp(folder / path.name)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def _new_temp(path: Path) -> str:
-    """A new empty hidden file next to ``path`` (mode from the umask, unlike ``mkstemp``'s 0600)."""
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-        try:
-            os.close(os.open(tmp, flags, 0o666))
-            return str(tmp)
-        except FileExistsError:  # pragma: no cover - 48 random bits
-            continue
+    return atomic_write(path, write)
 
 
 def read_results(path) -> list[dict]:
