@@ -57,7 +57,6 @@ class BatchSummary:
     out: Path
     timings: dict
     n_fitted: int = 0
-    notes: list = dataclasses.field(default_factory=list)
     model: str = DEFAULT_MODEL
 
 
@@ -81,36 +80,49 @@ class _FileInfo:
 # --------------------------------------------------------------------------- inputs
 
 
-def _walk(inputs) -> tuple[list[str], list[str]]:
-    """Files to process (explicit files always; folder entries only when they hold recordings) and notes."""
+def _walk(inputs, out: Path | None = None) -> tuple[list[str], dict[str, str]]:
+    """Every file to give a row, in order, and why a folder entry is not a recording (file -> reason).
+
+    Explicit files are always taken. In a folder every file is taken except hidden ones (names
+    starting with ".", such as the results' own temporary files) and ``out`` itself; a folder that
+    holds no recording at all is an error.
+    """
     from .io import RECORDING_SUFFIXES, is_recording_file
 
-    files, notes = [], []
+    files, not_recordings = [], {}
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
+    skip = None if out is None else os.path.realpath(out)
     for item in inputs:
         p = Path(os.fspath(item))
-        if p.is_dir():
-            for root, dirs, names in os.walk(p):
-                dirs.sort()
-                for name in sorted(names):
-                    q = os.path.join(root, name)
-                    if name.startswith("."):
-                        continue
-                    if is_recording_file(q):
-                        files.append(q)
-                    else:
-                        why = ("not a recording (no 'signals' or unreadable)" if Path(name).suffix.lower()
-                               in RECORDING_SUFFIXES else "not a recording file type")
-                        notes.append(f"skipped {q}: {why}")
-        else:
+        if not p.is_dir():
             files.append(os.fspath(item))
+            continue
+        found = 0
+        for root, dirs, names in os.walk(p):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            for name in sorted(names):
+                q = os.path.join(root, name)
+                if name.startswith(".") or os.path.realpath(q) == skip:
+                    continue
+                files.append(q)
+                if is_recording_file(q):
+                    found += 1
+                else:
+                    suffix = Path(name).suffix.lower()
+                    not_recordings[q] = (f"not a recording: no 'signals' in this {suffix} file, or unreadable"
+                                         if suffix in RECORDING_SUFFIXES else
+                                         f"not a recording file type ({suffix or 'no suffix'}; "
+                                         f"recordings are {', '.join(RECORDING_SUFFIXES)})")
+        if not found:
+            raise TactileInputError(f"no recording files ({', '.join(RECORDING_SUFFIXES)} with 'signals') in "
+                                    "this folder or below", source=str(p), code="bad_setting")
     seen, unique = set(), []
     for f in files:
         if f not in seen:
             seen.add(f)
             unique.append(f)
-    return unique, notes
+    return unique, not_recordings
 
 
 def _scan(path: str) -> _FileInfo:
@@ -145,10 +157,16 @@ def _scan(path: str) -> _FileInfo:
     return info
 
 
-def scan_inputs(inputs) -> tuple[list[_FileInfo], list[str]]:
-    """Walk ``inputs`` and scan every recording file: (file infos, notes about skipped files)."""
-    files, notes = _walk(inputs)
-    return [_scan(f) for f in files], notes
+def scan_inputs(inputs, out: Path | None = None) -> list[_FileInfo]:
+    """Walk ``inputs`` (see ``_walk``) and scan every file; a file that is not a recording carries its error."""
+    files, not_recordings = _walk(inputs, out)
+    infos = []
+    for f in files:
+        if f in not_recordings:
+            infos.append(_FileInfo(f, error=TactileInputError(not_recordings[f], source=f, code="not_recording")))
+        else:
+            infos.append(_scan(f))
+    return infos
 
 
 # --------------------------------------------------------------------------- reading records
@@ -177,10 +195,40 @@ def _read_records(info: _FileInfo, start: int, stop: int) -> np.ndarray:
     return sig[None] if not info.multi else sig[start:stop]
 
 
-def _error_row(src: str, index: int, code: str, message: str, model: str) -> dict:
+def _error_row(src: str, index: int, code: str, message: str, model: str, tag: str) -> dict:
     row = dict.fromkeys(RESULT_FIELDS)
-    row.update(file=src, index=int(index), converged=False, status=code, message=message, model=model)
+    row.update(file=src, index=int(index), converged=False, status=code, message=message, model=model, options=tag)
     return row
+
+
+def options_tag(options: FitOptions) -> str:
+    """The options a row was fitted with, as ``name=value; ...`` (those that differ from the defaults)."""
+    default = FitOptions()
+    parts = [f"{f.name}={getattr(options, f.name)!r}" for f in dataclasses.fields(FitOptions)
+             if getattr(options, f.name) != getattr(default, f.name)]
+    return "; ".join(parts) or "defaults"
+
+
+def _tag_items(tag) -> dict:
+    if tag in (None, "") or (isinstance(tag, float) and math.isnan(tag)):
+        return {"options": "not recorded"}
+    return dict(part.split("=", 1) for part in str(tag).split("; ") if "=" in part)
+
+
+def _check_options(out: Path, kept: list[dict], tag: str) -> None:
+    """Refuse to resume rows fitted with other options, naming the first difference."""
+    new = _tag_items(tag)
+    for row in kept:
+        old = _tag_items(row.get("options"))
+        if old != new:
+            name = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))[0]
+
+            def value(items):
+                return items.get(name, repr(getattr(FitOptions(), name, None)))
+
+            raise TactileInputError(
+                f"holds rows fitted with {name}={value(old)}, this run has {name}={value(new)}: rerun with --no-resume to refit every row, or write to "
+                "another --out", source=str(out), code="bad_setting")
 
 
 # --------------------------------------------------------------------------- chunks
@@ -225,6 +273,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     from .recording import Recording, validate_recording
 
     t0 = time.perf_counter()
+    tag = options_tag(options)
     rows: dict[int, dict] = {}
     good, recs, metas = [], [], []
     pos = 0
@@ -236,7 +285,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         except Exception as exc:  # noqa: BLE001 - a file that changed or broke since the scan
             for k, i in enumerate(range(start, stop)):
                 rows[pos + k] = _error_row(info.path, i, "unreadable",
-                                           f"{info.path}: cannot read record {i}: {type(exc).__name__}: {exc}", model)
+                                           f"{info.path}: cannot read record {i}: {type(exc).__name__}: {exc}", model, tag)
             pos += stop - start
             continue
         t1 = time.perf_counter()
@@ -250,7 +299,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 recs.append(record_of(block[k], info.fs, info.depths, file_options, source=src))
             except TactileInputError as err:
                 err = err.with_source(src)
-                rows[pos + k] = _error_row(info.path, i, err.code, str(err), model)
+                rows[pos + k] = _error_row(info.path, i, err.code, str(err), model, tag)
                 continue
             good.append((pos + k, info.path, i))
             metas.append((vel, info.curvature_radius))
@@ -265,11 +314,11 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
                                           model=model_name(s.free, vel is not None), segments=r.seg)
                 res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
-                rows[p] = res.to_record()
+                rows[p] = {**res.to_record(), "options": tag}
         except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume
             text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
             for p, src, i in good:
-                rows[p] = _error_row(src, i, "worker_error", f"{src}: the chunk failed: {text}", model)
+                rows[p] = _error_row(src, i, "worker_error", f"{src}: the chunk failed: {text}", model, tag)
         timings["fit"] += time.perf_counter() - t1
     return [rows[k] for k in sorted(rows)], timings
 
@@ -297,32 +346,6 @@ def _key(row: dict):
         return str(row.get("file")), int(row.get("index") or 0)
     except (TypeError, ValueError):
         return None
-
-
-class _Progress:
-    """One self-overwriting line on stderr: records done, rate, time left."""
-
-    def __init__(self, total: int, enabled: bool):
-        self.total, self.enabled, self.done, self.t0 = total, enabled and total > 0, 0, time.perf_counter()
-
-    def update(self, n: int):
-        self.done += n
-        if not self.enabled:
-            return
-        dt = time.perf_counter() - self.t0
-        rate = self.done / dt if dt > 0 else 0.0
-        left = (self.total - self.done) / rate if rate > 0 else float("inf")
-        eta = "--:--" if not math.isfinite(left) else f"{int(left // 60):02d}:{int(left % 60):02d}"
-        width = 30
-        fill = int(width * self.done / self.total)
-        sys.stderr.write(f"\r[{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} recordings"
-                         f"  {rate:.1f}/s  left {eta} ")
-        sys.stderr.flush()
-
-    def close(self):
-        if self.enabled:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
 
 
 def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 32, workers: int | None = None,
@@ -358,26 +381,34 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         raise TactileInputError(f"chunk_size must be an int >= 1; got {chunk_size!r}", code="bad_setting")
     if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
         raise TactileInputError(f"workers must be >= 1; got {workers!r}", code="bad_setting")
-    options = _hashable(options)
+    if workers is not None or scheduler is not None:
+        from ._optional import need
 
-    infos, notes = scan_inputs(inputs)
+        need("dask.distributed", "batch", "a Dask run (--workers, --scheduler)")    # before any file is read
+    options = _hashable(options)
+    tag = options_tag(options)
+
+    infos = scan_inputs(inputs, out)
     t_scan = time.perf_counter() - t_start
     kept = []
     if resume:
         kept = [r for r in _existing_rows(out) if r.get("status") not in TRANSIENT_STATUSES and _key(r) is not None]
         for r in kept:
             r["index"] = int(r["index"] or 0)               # CSV reads numbers back as float
+        _check_options(out, kept, tag)
     done = {_key(r) for r in kept}
     rows = list(kept)
     n_skipped = 0
     for info in infos:
         n_skipped += sum((info.path, i) in done for i in range(max(info.n_records, 1)))
         if info.error is not None and (info.path, 0) not in done:
-            rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model))
+            rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model, tag))
     chunks = _plan(infos, done, int(chunk_size))
     total = sum(stop - start for _, segs in chunks for _, start, stop in segs)
     timings = {"scan": t_scan, "read": 0.0, "spectra": 0.0, "fit": 0.0, "write": 0.0}
-    bar = _Progress(total, progress)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, unit="rec", desc="batch", disable=not progress or total == 0, file=sys.stderr)
 
     def consume(new_rows, t):
         rows.extend(new_rows)
@@ -411,7 +442,7 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     n_failed = sum(1 for r in rows if r.get("status") not in FIT_RAN)
     timings["total"] = time.perf_counter() - t_start
     return BatchSummary(n_rows=len(rows), n_failed=n_failed, n_skipped=n_skipped, out=out, timings=timings,
-                        n_fitted=total, notes=notes, model=model)
+                        n_fitted=total, model=model)
 
 
 def _hashable(options: FitOptions) -> FitOptions:
@@ -424,8 +455,12 @@ def _hashable(options: FitOptions) -> FitOptions:
 
 
 def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
-    import dask
-    from dask.distributed import Client, LocalCluster, as_completed
+    from ._optional import need
+
+    dask = need("dask", "batch", "a Dask run (--workers, --scheduler)")
+    distributed = need("dask.distributed", "batch", "a Dask run (--workers, --scheduler)")
+    Client, LocalCluster, as_completed = distributed.Client, distributed.LocalCluster, distributed.as_completed
+    tag = options_tag(options)
 
     cluster = None
     with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
@@ -448,7 +483,7 @@ def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, c
                     consume(*fut.result())
                 except Exception as exc:  # noqa: BLE001 - a lost worker: the chunk's rows say so (transient)
                     text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
-                    lost = [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model)
+                    lost = [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model, tag)
                             for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)]
                     consume(lost, {"read": 0.0, "spectra": 0.0, "fit": 0.0})
         finally:

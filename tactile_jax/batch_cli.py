@@ -7,7 +7,7 @@ import click
 from .cli import _floats, _user_errors
 
 
-@click.command("batch")
+@click.command("batch", short_help="Fit every record of a dataset, resumably.")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path())
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
               help="Results file: .json, .csv or .parquet (needs pyarrow); rerunning with it resumes.")
@@ -38,8 +38,6 @@ def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, npers
     options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg)
     summary = run_batch(list(inputs), out, options=options, chunk_size=chunk_size, workers=workers,
                         scheduler=scheduler, progress=not quiet, resume=not no_resume)
-    for note in summary.notes:
-        click.echo(f"note: {note}", err=True)
     t = summary.timings
     rate = summary.n_fitted / t["total"] if t["total"] > 0 else 0.0
     click.echo(f"wrote {summary.out}: {summary.n_rows} rows ({summary.n_fitted} fitted now, {summary.n_skipped} "

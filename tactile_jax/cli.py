@@ -59,7 +59,7 @@ def main():
     """Slip velocity, contact radius and texture spectra from a vertical-sampling tactile sensor."""
 
 
-@main.command()
+@main.command(short_help="Simulate a scene into a recording file.")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Recording file to write (.h5, .hdf5 or .npz).")
 @click.option("--texture", type=click.Choice(["random", "grating", "net", "directional", "modes"]), default="random",
               show_default=True, help="random (foamed polystyrene), grating (1-D, like the paper's pipes), net (wire net),"
@@ -117,47 +117,48 @@ def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth
                f"vx = {100 * t['vx']:.3f} cm/s, vy = {100 * t['vy']:.3f} cm/s, a = {1e3 * t['a']:.3f} mm ({t['window']})")
 
 
-@main.command()
+@main.command(short_help="Estimate a recording's spectra into a spectra file.")
 @click.argument("recording", type=click.Path(dir_okay=False))
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Spectra file to write (.h5 or .npz).")
 @click.option("--method", type=click.Choice(["welch", "multitaper"]), default="welch", show_default=True)
-@click.option("--nperseg", type=int, default=None, help="Welch segment length, samples (default: N/8 rounded down to a power of two).")
+@click.option("--nperseg", type=int, default=None,
+              help="Welch segment length, samples (default: as `fit` chooses it, N/8 rounded down to a power of two, "
+                   "longer for slow slips).")
 @click.option("--prewhiten", type=int, default=8, show_default=True, help="AR order of the prewhitening filter (0: off).")
 @click.option("--record", type=int, default=0, show_default=True, help="Record index in a multi-record file.")
 @_user_errors
 def spectra(recording, out, method, nperseg, prewhiten, record):
-    """Estimate auto/cross spectra and amplitude ratios of a recording; write a spectra file."""
+    """Estimate a recording's spectra as `fit` does; write a spectra file that fits like the recording.
+
+    The file holds the 4 x 4 spectral matrix (psd, csd, xy), each group of segments' spectra (the
+    jackknife's), the estimator (kernel, bin factor, prewhitening filters) and the amplitude ratios.
+    """
     import numpy as np
 
+    from .fit import FitOptions, _options_from_file, record_of
     from .io import SpectraData, read_recording, write_spectra
-    from .spectra import amplitude_ratio, estimate_spectra
+    from .joint.segments import to_spectra
 
     rec = read_recording(recording)
     if not 0 <= record < rec.n_records:
         raise TactileInputError(f"--record {record} out of range: the file holds {rec.n_records} record(s)",
                                 source=recording, code="bad_setting")
     one = rec.record(record)
-    kw = {"nperseg": nperseg} if (nperseg and method == "welch") else {}
+    options = _options_from_file(FitOptions(method=method, nperseg=nperseg, prewhiten=prewhiten), one)
     try:
-        spec = estimate_spectra(np.asarray(one.signals, float), one.fs, method=method, prewhiten=prewhiten or None, **kw)
+        seg = record_of(one.signals, one.fs, one.depths, options, source=recording).seg
     except TactileInputError as err:
         raise err.with_source(recording) from None
-    ratio = amplitude_ratio(spec)
-    data = SpectraData(omega=np.asarray(spec.omega), psd=np.asarray(spec.psd), csd=np.asarray(spec.csd),
-                       n_segments=float(spec.dof), ratio=np.exp(np.asarray(ratio.log_ratio))[:, 1:],
-                       ratio_err=np.asarray(ratio.log_ratio_err)[:, 1:], depths=one.depths,
-                       curvature_radius=one.curvature_radius, velocity=one.velocity, gain_ratio=one.gain_ratio,
-                       kernel=np.asarray(spec.kernel, float), bin_factor=float(spec.bin_factor),
-                       whitening=None if spec.whitening is None else np.asarray(spec.whitening),
-                       fs=float(one.fs))
-    # DC carries no ratio: the ratio arrays start at the first bin, so drop DC from every array
-    data = data._replace(omega=data.omega[1:], psd=data.psd[:, 1:], csd=data.csd[:, 1:])
+    data = SpectraData(**to_spectra(seg), depths=one.depths, curvature_radius=one.curvature_radius,
+                       velocity=one.velocity, gain_ratio=one.gain_ratio)
     path = write_spectra(out, data)
+    segs = f"nperseg {int(seg.nperseg)}, " if method == "welch" else ""
     click.echo(f"wrote {path}: {data.omega.size} bins up to {data.omega[-1] / (2 * np.pi):g} Hz "
-               f"({method}, K_eff = {spec.dof:.1f}, prewhiten AR({prewhiten}))")
+               f"({method}, {segs}K_eff = {float(seg.dof):.1f}, {data.group_count.size} groups, "
+               f"prewhiten AR({prewhiten}))")
 
 
-@main.command()
+@main.command(short_help="Simulate the paper's Fig. 5 scene and fit it.")
 @click.option("--out-dir", default="tactile_jax_demo", show_default=True, type=click.Path(file_okay=False),
               help="Folder for the figure.")
 @click.option("--seed", type=int, default=0, show_default=True)
@@ -198,7 +199,7 @@ def demo(out_dir, seed, duration, method):
                    f"{dof} dof): the contact window bends it at low omega, so the slope is biased; "
                    "the joint fit's exact window model (Eq. 23) models it.")
     click.echo(f"  joint fit: status {ex.status}, reduced chi2 {ex.redchi:.2f}; {ex.message or 'no notes'}")
-    click.echo(f"  figure: {r.figure}")
+    click.echo(f"  figure: {r.figure}" if r.figure else f"  note: {r.note}")
     click.echo(f"  time: {r.seconds:.1f} s (simulation, spectra, fits, figure; JIT compile included)")
 
 
@@ -206,10 +207,11 @@ _FIT_RAN = ("ok", "not_converged", "poor_fit")     # statuses of a fit that ran 
 _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`` run
 
 
-@main.command()
+@main.command(short_help="Fit recordings or spectra files, with error bars.")
 @click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
-              help="Results file: .json (list of objects), .csv or .parquet (needs pyarrow); one row per record.")
+@click.option("--out", "out", default=None, type=click.Path(dir_okay=False),
+              help="Results file: .json (list of objects), .csv or .parquet (needs pyarrow); one row per record. "
+                   "Without it the reports are printed and nothing is written.")
 @click.option("--mcmc", is_flag=True, help="Sample the posterior with emcee around each fit (errors beyond Laplace).")
 @click.option("--walkers", type=int, default=32, show_default=True, help="emcee walkers (at least 2 x free parameters).")
 @click.option("--steps", type=int, default=500, show_default=True, help="emcee steps per walker, burn-in (1/4) included.")
@@ -232,9 +234,9 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
 @click.option("--ratio-only", is_flag=True,
               help="Leave out the deep probe's conditioned PSD S22.1 (fit the ratio and shallow PSD alone).")
 @click.option("--cross-pairs", "cross_pairs", type=click.IntRange(0, 2), default=None,
-              help="Fit the y pair conditioned on the x pair, with the x-y cross-spectra (recordings only): "
+              help="Fit the y pair conditioned on the x pair, with the x-y cross-spectra: "
                    "0 off, 1 y1 only, 2 both y probes. Default: 2 where the spectra have x-y cross-spectra "
-                   "(a recording's), else 0.")
+                   "(recordings, and files from 'tactile-jax spectra'), else 0.")
 @_user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
         quiet, scene=None, model=None, ratio_only=False, cross_pairs=None):
@@ -250,10 +252,10 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
     from .fit import FitOptions
     from .results import RESULT_SUFFIXES
 
-    out_path = Path(out)
-    if out_path.suffix.lower() not in RESULT_SUFFIXES:
+    out_path = None if out is None else Path(out)
+    if out_path is not None and out_path.suffix.lower() not in RESULT_SUFFIXES:
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}, got {out!r}", code="bad_setting")
-    if out_path.suffix.lower() == ".parquet":
+    if out_path is not None and out_path.suffix.lower() == ".parquet":
         try:
             import pyarrow  # noqa: F401
         except ImportError:
@@ -263,6 +265,13 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
         raise TactileInputError(f"--record must be >= 0, got {record}", code="bad_setting")
     if mcmc and (walkers < 2 or steps < 2):
         raise TactileInputError("--walkers and --steps must be at least 2", code="bad_setting")
+    if mcmc or plot_dir is not None:                      # optional extras, checked before any fit runs
+        from ._optional import need
+
+        if mcmc:
+            need("arviz", "mcmc", "--mcmc")
+        if plot_dir is not None:
+            need("matplotlib", "plot", "--plot")
     known = None if velocity is None else tuple(abs(v) for v in _floats(velocity, 2, "velocity"))
     options = FitOptions(method=method, velocity=known, fit_gain=fit_gain, noise_floor=noise_floor, solver=solver)
     options = _scene_options(options, scene, model)
@@ -270,7 +279,7 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
         options = dataclasses.replace(options, conditioned=False)
     if cross_pairs is not None:
         options = dataclasses.replace(options, cross_pairs=cross_pairs)
-    mcmc_settings = dict(n_walkers=walkers, n_steps=steps, seed=seed) if mcmc else None
+    mcmc_settings = dict(n_walkers=walkers, n_steps=steps, seed=seed, progress=not quiet) if mcmc else None
 
     rows, failures = [], []
     _POSTERIOR_FILES.clear()
@@ -295,17 +304,21 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
                 if many:
                     click.echo(f"  failed ({row['status']}): {problem}", err=True)
 
-    from .results import write_results
+    if out_path is not None:
+        from .results import write_results
 
-    written = write_results(out_path, rows)
-    if not quiet and (many or not failures):
-        click.echo(f"wrote {written}: {len(rows)} row{'s' if len(rows) != 1 else ''}", err=True)
+        written = write_results(out_path, rows)
+        if not quiet and (many or not failures):
+            click.echo(f"wrote {written}: {len(rows)} row{'s' if len(rows) != 1 else ''}", err=True)
     if not many and failures:
         for problem in failures:
             click.echo(f"error: {problem}", err=True)
         sys.exit(2)
     if many:
         click.echo(f"{len(rows) - len(failures)} fitted, {len(failures)} failed", err=True)
+        if len(failures) == len(rows):
+            click.echo(f"error: none of the {len(rows)} records was fitted", err=True)
+            sys.exit(2)
 
 
 def _scene_options(options, scene, model):
@@ -378,7 +391,11 @@ def _error_row(src, index, code, message) -> dict:
 
 
 def _attach_mcmc(result, row, out_path, settings):
-    """Sample the posterior of an ok fit, attach it to ``result``, update ``row`` and save the draws."""
+    """Sample the posterior of an ok fit, attach it to ``result``, update ``row`` and save the draws.
+
+    settings: ``run_emcee`` keywords; with ``progress`` true, emcee's progress bar and a line naming
+    the posterior file (with ESS and the largest tau, steps) go to stderr.
+    """
     from pathlib import Path
 
     from .posterior import run_emcee, save_posterior
@@ -388,7 +405,7 @@ def _attach_mcmc(result, row, out_path, settings):
         row["mcmc_warnings"] = f"not run: {why}"
         return
     try:
-        post = run_emcee(result.problem, progress=sys.stderr.isatty(), **settings)
+        post = run_emcee(result.problem, **settings)
     except ValueError as err:
         row["mcmc_warnings"] = f"not run: {err}"
         click.echo(f"warning: {result.file} [{result.index}]: MCMC not run: {err}", err=True)
@@ -407,6 +424,12 @@ def _attach_mcmc(result, row, out_path, settings):
     if result.truth:
         attrs["truth"] = result.truth
     row["posterior_file"] = str(save_posterior(path, post, attrs=attrs))
+    if settings.get("progress"):
+        import math
+
+        known = math.isfinite(post.ess) and math.isfinite(post.max_tau)
+        diag = f"ESS {post.ess:.0f}, tau {post.max_tau:.1f} steps" if known else "tau not estimable: run a longer chain"
+        click.echo(f"posterior: {path} ({diag})", err=True)
 
 
 def _fit_figures(result, plot_dir, quiet):
@@ -428,7 +451,7 @@ from .batch_cli import batch as _batch  # noqa: E402
 main.add_command(_batch)
 
 
-@main.command("compare-r")
+@main.command("compare-r", short_help="Rough Eq. 26 against the exact R curve.")
 @click.option("--out", "out_dir", default="compare_r", show_default=True, type=click.Path(file_okay=False),
               help="Folder for the PNG figures and the bias table (CSV).")
 @click.option("--tol", type=float, default=0.05, show_default=True, help="Tolerance on |log R_rough - log R_exact|.")

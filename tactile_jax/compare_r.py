@@ -299,13 +299,10 @@ def write_figures(out_dir, *, tol: float = 0.05, speeds=(0.023, 0.047), fs: floa
     """PNG maps of the rough-curve error (dimensionless plane, paper sensor) and of Gaussian vs Hertz."""
     from pathlib import Path
 
-    import matplotlib
+    from .plotting import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()                                        # MissingExtra naming the plot extra without matplotlib
     from matplotlib.colors import LogNorm
-
-    from .plotting import save_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

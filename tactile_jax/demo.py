@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._optional import MissingExtra
 from .closed_form import SlopeFit, slope_speed
 from .fit import FitOptions, FitResult, fit_recording
 from .r_curve import log_r_exact
@@ -22,7 +23,11 @@ DEFAULT_PREWHITEN = 8
 
 
 class DemoResult(NamedTuple):
-    """Truth next to the estimates for the demo scene (SI units) and where the figure went."""
+    """Truth next to the estimates for the demo scene (SI units) and where the figure went.
+
+    figure: the figure's path, or None when none was written. note: why not, for people
+    (e.g. the ``pip install`` line of the ``plot`` extra); empty otherwise. seconds: wall time (s).
+    """
 
     scene: Scene
     slope: SlopeFit
@@ -30,6 +35,7 @@ class DemoResult(NamedTuple):
     band_hz: tuple[float, float]
     figure: Path | None
     seconds: float
+    note: str = ""
 
 
 def paper_fig5_scene(seed: int = 0, duration: float = 16.0) -> Scene:
@@ -45,7 +51,8 @@ def paper_fig5_scene(seed: int = 0, duration: float = 16.0) -> Scene:
 def run_demo(out_dir="tactile_jax_demo", *, seed: int = 0, duration: float = 16.0, method: str = "welch",
              plot: bool = True) -> DemoResult:
     """Simulate the Fig. 5 scene; estimate |vx| by the Eq. 6 slope of the x pair and (vx, vy, a) by the
-    joint fit of both pairs (``fit.fit_recording``, the exact window model); save a figure."""
+    joint fit of both pairs (``fit.fit_recording``, the exact window model); save a figure (``plot``;
+    without matplotlib, ``figure`` is None and ``note`` names the ``plot`` extra)."""
     t0 = time.perf_counter()
     scene = paper_fig5_scene(seed, duration)
     rec = simulate(scene)
@@ -59,7 +66,7 @@ def run_demo(out_dir="tactile_jax_demo", *, seed: int = 0, duration: float = 16.
     omega = np.asarray(ratio.omega)
     used = np.asarray(band[0])
     band_hz = (float(omega[used].min() / 2 / np.pi), float(omega[used].max() / 2 / np.pi)) if used.any() else (np.nan, np.nan)
-    figure = None
+    figure, note = None, ""
     if plot:
         from .plotting import plot_ratio_figure
 
@@ -71,11 +78,14 @@ def run_demo(out_dir="tactile_jax_demo", *, seed: int = 0, duration: float = 16.
                 np.asarray(log_r_exact(om / fit.vx, d1, d2, a_fit)),
             "Eq. 15 line at the true speed": -om * (d2 - d1) / true_speed,
         }
-        figure = plot_ratio_figure(
-            Path(out_dir) / "fig5_demo.png", freq=np.asarray(spec.freq), psd_shallow=np.asarray(spec.psd[0]),
-            psd_deep=np.asarray(spec.psd[1]), omega=omega, log_ratio=np.asarray(ratio.log_ratio[0]),
-            log_ratio_err=np.asarray(ratio.log_ratio_err[0]), band=used, line=(float(line.intercept), float(line.slope)),
-            line_label=f"Eq. 6 line: |vx| = {100 * float(line.speed):.3f} cm/s", curves={"om": om, **curves},
-            title=(f"Fig. 5 scene: random texture at {100 * true_speed:.1f} cm/s along x, "
-                   f"a = {1e3 * scene.contact_radius:.1f} mm (simulated)"))
-    return DemoResult(scene, line, fit, band_hz, figure, time.perf_counter() - t0)
+        try:
+            figure = plot_ratio_figure(
+                Path(out_dir) / "fig5_demo.png", freq=np.asarray(spec.freq), psd_shallow=np.asarray(spec.psd[0]),
+                psd_deep=np.asarray(spec.psd[1]), omega=omega, log_ratio=np.asarray(ratio.log_ratio[0]),
+                log_ratio_err=np.asarray(ratio.log_ratio_err[0]), band=used, line=(float(line.intercept), float(line.slope)),
+                line_label=f"Eq. 6 line: |vx| = {100 * float(line.speed):.3f} cm/s", curves={"om": om, **curves},
+                title=(f"Fig. 5 scene: random texture at {100 * true_speed:.1f} cm/s along x, "
+                       f"a = {1e3 * scene.contact_radius:.1f} mm (simulated)"))
+        except MissingExtra as err:
+            note = f"figure not written: {err}"
+    return DemoResult(scene, line, fit, band_hz, figure, time.perf_counter() - t0, note)

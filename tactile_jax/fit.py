@@ -59,8 +59,9 @@ class FitOptions:
     """How to fit a scene (SI units). Defaults suit the paper's sensor at 1 kHz.
 
     method, prewhiten, nperseg: spectral estimator (``joint.segments.segments``): "welch"
-        (Hann, half overlap; ``nperseg`` samples, default the largest power of two <= N / 8,
-        lengthened for slow slips) or "multitaper"; the order of the Burg AR prewhitening
+        (Hann, half overlap; ``nperseg`` samples, at least ``joint.segments.min_nperseg()`` = 14,
+        checked with the recording's name where the segments are made; default the largest power
+        of two <= N / 8, lengthened for slow slips) or "multitaper"; the order of the Burg AR prewhitening
         filter (0 or None: off).
     velocity: known (|vx|, |vy|) in m/s (the arm's command, paper section 4.3): held fixed.
     gain_ratio: known deep/shallow gain ratios (gx, gy) or one for both; None: the
@@ -73,7 +74,7 @@ class FitOptions:
     conditioned: fit each pair's conditioned deep PSD S22.1 = S22 - |S12|^2 / S11 too: the deep
         power the shallow probe does not explain, which 2-D slip through a small contact sets.
     cross_pairs: the y pair conditioned on the x pair (``cross_pair``): None (default) 2 where
-        the spectra have the x-y cross-spectra (a recording's), 0 where not (spectra files);
+        the data have the x-y cross-spectra (recordings, files from ``tactile-jax spectra``), else 0;
         0 off, 1 y1 given (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in place of
         the y pair's ratio and S22.1.
     profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
@@ -193,6 +194,7 @@ class FitResult:
     redchi: float | None = None
     chi2: float | None = None
     n_bins: int = 0
+    n_residuals: int = 0
     n_params: int = 0
     cond: float | None = None
     aic: float | None = None
@@ -291,6 +293,7 @@ def _fit_ratio_only(data, options: FitOptions) -> FitResult:
         res.status = "not_converged"
     res.redchi = float(np.mean([f.redchi for f in fits if f is not None]))
     res.n_bins = int(sum(f.n_bins for f in fits if f is not None))
+    res.n_residuals = res.n_bins                      # one log ratio per bin
     res.gain_ratio = fx.gain_ratio if fx is not None else gains[0]
     res.gain_ratio_err = fx.gain_ratio_err if fx is not None else None
     res.gain_ratio_y = fy.gain_ratio if fy is not None else gains[1]
@@ -390,22 +393,40 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
     return res
 
 
+#: what a spectra file without the x-y cross-spectra costs its fit (``FitResult.message``)
+NO_XY_MESSAGE = ("the spectra have no x-y cross-spectra ('xy'): the y pair is fitted without conditioning on the "
+                 "x pair (the x-y chain is off), so the information both pairs share under oblique slip is lost "
+                 "and the errors of vx, vy and a are typically larger than a fit of the recording gives")
+
+
 def fit_spectra(data, options: FitOptions = FitOptions()) -> FitResult:
-    """Fit recorded spectra (``io.SpectraData``): PSD/CSD through the joint pipeline, ratios alone per pair."""
+    """Fit recorded spectra (``io.SpectraData``): PSD/CSD (with the x-y cross-spectra and the groups of
+    segments where given) through the joint pipeline, ratios alone per pair.
+
+    A file that ``tactile-jax spectra`` wrote from a recording gives the recording's fit: the same
+    ``Segments`` go into the same program."""
     options = _options_from_file(options, data)
     if data.psd is None or data.csd is None:
         return _fit_ratio_only(data, options)
+    xy = getattr(data, "xy", None)
+    count = getattr(data, "group_count", None)
+    groups = None if count is None else (count, data.group_psd, data.group_csd, data.group_xy)
     warnings = []
-    if not data.n_segments:
+    n_segments = data.n_segments or (float(np.sum(count)) if count is not None else None)
+    if not n_segments:
         warnings.append("n_segments not given: errors assume 1 segment (very conservative)")
-    if options.cross_pairs:
-        warnings.append("cross_pairs: these spectra have no x-y cross-spectra; the pairs are fitted as if independent")
-    r = run.record_from_spectra(data.omega, data.psd, data.csd, data.depths, n_segments=float(data.n_segments or 1),
+    if groups is None:
+        warnings.append("no groups of segments (group_*): no jackknife; the errors are the Laplace errors times "
+                        "max(redchi, 1) times the bin factor")
+    r = run.record_from_spectra(data.omega, data.psd, data.csd, data.depths, n_segments=float(n_segments or 1),
+                                xy=xy, groups=groups,
                                 kernel=None if getattr(data, "kernel", None) is None else _file_kernel(data),
                                 bin_factor=data.bin_factor, whitening=data.whitening, fs=data.fs,
                                 gains=_gains(options), velocity=options.velocity, source=data.source)
-    res = fit_record(r, options, curvature_radius=data.curvature_radius, has_xy=False)
+    res = fit_record(r, options, curvature_radius=data.curvature_radius, has_xy=xy is not None)
     res.warnings.extend(warnings)
+    if xy is None and res.status not in ("unsupported", "failed"):
+        res.message = "; ".join(m for m in (res.message, NO_XY_MESSAGE) if m)
     res.file = data.source
     return res
 
@@ -537,7 +558,7 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     res.names = names
     res.redchi, res.chi2, res.cond = float(s.redchi), float(s.chi2), float(s.cond)
     n_free, n = int(free.sum()), float(s.n_data)
-    res.n_params = n_free
+    res.n_params, res.n_residuals = n_free, int(n)
     res.aic = float(n * np.log(max(res.chi2, 1e-300) / max(n, 1)) + 2 * n_free)
     res.bic = float(n * np.log(max(res.chi2, 1e-300) / max(n, 1)) + np.log(max(n, 1)) * n_free)
     scales = np.asarray(s.scales)

@@ -14,8 +14,9 @@ datasets instead of root attributes):
   ``curvature_radius``, ``velocity``, ``gain_ratio`` as root attributes;
   ``truth`` as a JSON string root attribute (a string dataset when larger
   than an HDF5 attribute comfortably holds).
-- spectra: ``omega``, ``psd``, ``csd``, ``ratio``, ``ratio_err`` datasets;
-  ``n_segments``, ``depths`` and the optional keys as root attributes.
+- spectra: ``omega``, ``psd``, ``csd``, ``xy``, ``group_count``, ``group_psd``, ``group_csd``,
+  ``group_xy``, ``ratio``, ``ratio_err``, ``kernel``, ``whitening`` datasets; ``n_segments``,
+  ``bin_factor``, ``fs``, ``depths`` and the optional keys as root attributes (docs/data-format.md).
 
 In ``.npz`` every key is an array member; ``truth`` is a 0-d unicode array.
 """
@@ -60,9 +61,17 @@ class SpectraData(NamedTuple):
     """Spectra of the four channels, for users who have spectra rather than signals (SI units).
 
     omega: (M,) temporal angular frequencies, rad/s, >= 0.
-    psd: (4, M) power spectral densities of channels x1, x2, y1, y2, or None.
-    csd: complex (2, M) cross-spectra S12 of the x pair and of the y pair, or None (needs ``psd``).
-    n_segments: number of averaged segments behind ``psd``/``csd``, or None.
+    psd: (4, M) power spectral densities of channels x1, x2, y1, y2 (units^2/Hz, one-sided), or None.
+    csd: complex (2, M) cross-spectra S12 = E[conj(X1) X2] of the x pair and of the y pair, or None
+        (needs ``psd``).
+    xy: complex (4, M) cross-spectra E[conj(X_i) Y_j] between the pairs in the order (x1 y1, x1 y2,
+        x2 y1, x2 y2), or None (needs ``csd``); with ``psd`` and ``csd`` the whole 4 x 4 spectral matrix.
+    n_segments: effective number of independent segments averaged into ``psd``/``csd``/``xy`` (K_eff:
+        the estimates' degrees of freedom are 2 K_eff), or None.
+    group_count: (G,) segments in each group of consecutive segments, > 0, or None; with it
+        group_psd (G, 4, M), group_csd (G, 2, M) and group_xy (G, 4, M, when ``xy`` is given):
+        each group's mean spectra, whose count-weighted mean is ``psd``/``csd``/``xy`` (the fit's
+        delete-one-group jackknife).
     ratio: (2, M) AMPLITUDE ratios |P2/P1| of the x and y pairs, or None.
     ratio_err: (2, M) standard errors of log|P2/P1| (natural log), or None (needs ``ratio``).
     depths: (d1, d2) probe depths in metres, 0 < d1 < d2.
@@ -95,6 +104,11 @@ class SpectraData(NamedTuple):
     bin_factor: float | None = None
     whitening: np.ndarray | None = None
     fs: float | None = None
+    xy: np.ndarray | None = None
+    group_count: np.ndarray | None = None
+    group_psd: np.ndarray | None = None
+    group_csd: np.ndarray | None = None
+    group_xy: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------- public API
@@ -140,9 +154,10 @@ def write_recording(path, rec: Recording) -> Path:
 def read_spectra(path) -> SpectraData:
     """Read and validate a spectra file (``.h5``, ``.hdf5`` or ``.npz``).
 
-    Keys: ``omega`` (M,) rad/s; ``psd`` (4, M) with optional complex ``csd`` (2, M) and
-    ``n_segments``, and/or ``ratio`` (2, M) amplitude ratios with optional ``ratio_err``
-    (2, M, standard error of log ratio); ``depths`` [d1, d2] (m); optional
+    Keys: ``omega`` (M,) rad/s; ``psd`` (4, M) with optional complex ``csd`` (2, M), ``xy`` (4, M),
+    ``n_segments`` and the groups ``group_count`` (G,), ``group_psd`` (G, 4, M), ``group_csd``
+    (G, 2, M), ``group_xy`` (G, 4, M); and/or ``ratio`` (2, M) amplitude ratios with optional
+    ``ratio_err`` (2, M, standard error of log ratio); ``depths`` [d1, d2] (m); optional
     ``curvature_radius`` (m), ``velocity`` (m/s), ``gain_ratio``; optional estimator
     description ``kernel`` (2, J), ``bin_factor``, ``whitening`` (2, p + 1), ``fs`` (Hz).
     Raises ``TactileInputError`` (source = ``str(path)``) on any failure.
@@ -161,7 +176,8 @@ def write_spectra(path, data: SpectraData) -> Path:
     kind = _kind(path, src)
     vsrc = getattr(data, "source", None) or src
     checked = _spectra_checked(lambda k: getattr(data, k, None), vsrc)
-    arrays = {k: getattr(checked, k) for k in ("omega", "psd", "csd", "ratio", "ratio_err", "kernel", "whitening")}
+    arrays = {k: getattr(checked, k) for k in ("omega", "psd", "csd", "xy", "group_count", "group_psd", "group_csd",
+                                               "group_xy", "ratio", "ratio_err", "kernel", "whitening")}
     arrays = {k: v for k, v in arrays.items() if v is not None}
     attrs: dict[str, Any] = {"depths": np.asarray(checked.depths, dtype=np.float64)}
     for key in ("n_segments", "bin_factor", "fs"):
@@ -348,6 +364,9 @@ def _spectra_checked(get: Callable[[str], Any], src: str) -> SpectraData:
     """Validate the spectra keys given by ``get(key)`` (None when absent) into a SpectraData."""
     raw_omega = get("omega")
     if raw_omega is None:
+        if all(get(k) is None for k in ("signals", "psd", "ratio")):
+            raise TactileInputError("the file holds neither a recording ('signals') nor spectra ('omega', 'psd')",
+                                    source=src, code="missing_key")
         raise TactileInputError("missing key 'omega' (rad/s)", source=src, code="missing_key")
     omega = np.asarray(raw_omega)
     if omega.dtype.kind not in "fiu" or omega.ndim != 1:
@@ -361,22 +380,26 @@ def _spectra_checked(get: Callable[[str], Any], src: str) -> SpectraData:
                                 source=src, code="bad_shape")
     m = omega.size
 
-    raw = {k: get(k) for k in ("psd", "csd", "ratio", "ratio_err")}
+    raw = {k: get(k) for k in ("psd", "csd", "xy", "ratio", "ratio_err")}
     if raw["psd"] is None and raw["ratio"] is None:
         raise TactileInputError("missing key: spectra need either 'psd' (4, M) or 'ratio' (2, M)",
                                 source=src, code="missing_key")
     if raw["csd"] is not None and raw["psd"] is None:
         raise TactileInputError("'csd' given without 'psd'", source=src, code="missing_key")
+    if raw["xy"] is not None and raw["csd"] is None:
+        raise TactileInputError("'xy' given without 'psd' and 'csd'", source=src, code="missing_key")
     if raw["ratio_err"] is not None and raw["ratio"] is None:
         raise TactileInputError("'ratio_err' given without 'ratio'", source=src, code="missing_key")
 
-    psd = csd = ratio = ratio_err = None
+    psd = csd = xy = ratio = ratio_err = None
     if raw["psd"] is not None:
         psd = _matrix(raw["psd"], "psd", 4, m, src)
         if np.any(psd < 0):
             raise TactileInputError("'psd' must be >= 0", source=src, code="bad_shape")
     if raw["csd"] is not None:
         csd = _matrix(raw["csd"], "csd", 2, m, src, complex_ok=True)
+    if raw["xy"] is not None:
+        xy = _matrix(raw["xy"], "xy", 4, m, src, complex_ok=True)
     if raw["ratio"] is not None:
         ratio = _matrix(raw["ratio"], "ratio", 2, m, src)
         if np.any(ratio <= 0):
@@ -401,8 +424,56 @@ def _spectra_checked(get: Callable[[str], Any], src: str) -> SpectraData:
     if not (np.all(np.isfinite(depths)) and 0 < depths[0] < depths[1]):
         raise TactileInputError(f"'depths' must be [d1, d2] in metres with 0 < d1 < d2, got {list(depths)}",
                                 source=src, code="bad_depths")
-    return SpectraData(omega=omega, psd=psd, csd=csd, n_segments=n_segments, ratio=ratio, ratio_err=ratio_err,
-                       depths=depths, source=src, **_optional_values(get, src), **_estimator_values(get, src))
+    return SpectraData(omega=omega, psd=psd, csd=csd, xy=xy, n_segments=n_segments, ratio=ratio,
+                       ratio_err=ratio_err, depths=depths, source=src, **_optional_values(get, src),
+                       **_estimator_values(get, src), **_groups(get, psd, csd, xy, src))
+
+
+def _groups(get: Callable[[str], Any], psd, csd, xy, src: str) -> dict[str, Any]:
+    """The optional groups: ``group_count`` (G,) > 0 and each group's mean spectra, which must average
+    (weighted by the counts) to ``psd``, ``csd`` and ``xy``."""
+    keys = ("group_count", "group_psd", "group_csd", "group_xy")
+    raw = {k: get(k) for k in keys}
+    out: dict[str, Any] = dict.fromkeys(keys)
+    if all(v is None for v in raw.values()):
+        return out
+    need = ["group_count", "group_psd", "group_csd"] + (["group_xy"] if xy is not None else [])
+    missing = [k for k in need if raw[k] is None]
+    if missing or csd is None:
+        what = ", ".join(f"'{k}'" for k in missing) if missing else "'psd' and 'csd'"
+        raise TactileInputError(f"groups of segments given without {what}", source=src, code="missing_key")
+    if raw["group_xy"] is not None and xy is None:
+        raise TactileInputError("'group_xy' given without 'xy'", source=src, code="missing_key")
+    count = np.asarray(raw["group_count"])
+    if count.dtype.kind not in "fiu" or count.ndim != 1 or count.size < 1:
+        raise TactileInputError(f"'group_count' must be a real (G,) array, got {_describe(count)}", source=src,
+                                code="bad_shape")
+    count = _finite(count.astype(np.float64), "group_count", src)
+    if np.any(count <= 0):
+        raise TactileInputError("'group_count' (segments in each group) must be > 0", source=src, code="bad_shape")
+    out["group_count"] = count
+    for key, whole in (("group_psd", psd), ("group_csd", csd), ("group_xy", xy)):
+        if whole is None:
+            continue
+        a = np.asarray(raw[key])
+        shape = (count.size,) + whole.shape
+        if a.dtype.kind not in ("fiu" if key == "group_psd" else "fiuc") or a.shape != shape:
+            raise TactileInputError(f"'{key}' must be a {'real' if key == 'group_psd' else 'numeric'} array of "
+                                    f"shape (G, {whole.shape[0]}, M) = {shape} to match 'group_count' and 'omega', "
+                                    f"got {_describe(a)}", source=src, code="bad_shape")
+        a = _finite(_as_float(a), key, src)
+        if key != "group_psd" and a.dtype.kind != "c":
+            a = a.astype(np.result_type(a.dtype, np.complex64))
+        if key == "group_psd" and np.any(a < 0):
+            raise TactileInputError("'group_psd' must be >= 0", source=src, code="bad_shape")
+        mean = np.tensordot(count, a, axes=1) / count.sum()
+        scale = np.max(np.abs(whole), initial=0.0)
+        if not np.allclose(mean, whole, rtol=1e-5, atol=1e-9 * scale):
+            name = key.removeprefix("group_")
+            raise TactileInputError(f"'{key}' does not average to '{name}' (weighted by 'group_count')", source=src,
+                                    code="bad_shape")
+        out[key] = a
+    return out
 
 
 def _estimator_values(get: Callable[[str], Any], src: str) -> dict[str, Any]:

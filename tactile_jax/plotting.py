@@ -1,17 +1,28 @@
-"""Figures (matplotlib, Agg backend): the edge of the package, imported only by the CLI and examples."""
+"""Figures (matplotlib, Agg backend): the edge of the package, imported only by the CLI and examples.
+
+matplotlib is the ``plot`` extra: it is imported by the functions that draw, which raise
+``MissingExtra`` naming ``pip install "tactile_jax[plot]"`` without it.
+"""
 
 from __future__ import annotations
 
 import platform
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from ._optional import need
 
-__all__ = ["plot_ratio_figure", "provenance", "save_figure"]
+__all__ = ["plot_ratio_figure", "provenance", "pyplot", "save_figure"]
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend; ``MissingExtra`` naming the ``plot`` extra without matplotlib."""
+    matplotlib = need("matplotlib", "plot", "plotting")
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def provenance() -> str:
@@ -30,7 +41,7 @@ def save_figure(fig, path, *, dpi: int = 120) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    pyplot().close(fig)
     return path
 
 
@@ -43,6 +54,7 @@ def plot_ratio_figure(path, *, freq, psd_shallow, psd_deep, omega, log_ratio, lo
     (intercept, slope in s) of a fitted straight line, ``curves`` = {"om":
     omega grid, label: log R on that grid, ...} of model curves.
     """
+    plt = pyplot()
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     ax1.semilogy(freq[1:], np.sqrt(psd_shallow[1:]), lw=1, label="shallow $P_{x1}$")
     ax1.semilogy(freq[1:], np.sqrt(psd_deep[1:]), lw=1, label="deep $P_{x2}$")
@@ -156,6 +168,7 @@ def plot_fit(result, out_dir) -> list[Path]:
     # the model is an extrapolation beyond the bins used: show up to 1.5 times the highest one
     hi = 1.5 * omega[used].max() if used.any() else (omega.max() if omega.size else 1.0)
     hi = float(min(hi, omega.max() * 1.02)) if omega.size else 1.0
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
     for p, (ax, (axis, ylabel)) in enumerate(zip(axes, _PAIR_LABELS)):
         lr = np.asarray(curves["log_ratio"][p], float)
@@ -178,12 +191,16 @@ def plot_fit(result, out_dir) -> list[Path]:
         ax.set_xlabel("$\\omega$ (rad/s)")
         ax.set_ylabel(ylabel)
         n = int(mask.sum())
-        ax.set_title(f"({'ab'[p]}) {axis} pair: {n} bin{'s' if n != 1 else ''} used", fontsize=10)
+        ax.set_title(f"({'ab'[p]}) {axis} pair: {n} ratio bin{'s' if n != 1 else ''} fitted", fontsize=10)
         ax.set_xlim(0, hi)
         ax.set_ylim(*_ratio_limits(lr, err, mask | other, model, omega <= hi))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(_fit_title(result), fontsize=10)
+    # every speed comes from all four probes' spectra at once, not from one pair's ratio
+    fig.text(0.99, 0.01, f"vx, vy and a are fitted to {int(result.n_residuals or 0)} residuals of all four probes' "
+             f"spectra ({int(result.n_bins)} bins); each panel shows one pair's log ratio",
+             fontsize=7, color="0.3", ha="right")
     fig.text(0.01, 0.01, provenance(), fontsize=6, color="0.4")
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     out = Path(out_dir)
@@ -195,29 +212,43 @@ def plot_fit(result, out_dir) -> list[Path]:
 
 
 def plot_posterior_corner(result, out_dir, *, truth: dict | None = None) -> list[Path]:
-    """Corner plot of the posterior of |vx|, |vy| (cm/s) and a (mm): ``corner_<file stem>_<index>.png``.
+    """Corner plot (ArviZ ``plot_pair``) of the posterior of |vx|, |vy| (cm/s) and a (mm): ``corner_<file stem>_<index>.png``.
 
-    result: a ``fit.FitResult`` with ``posterior`` set (``posterior.run_emcee``).
-    truth: a simulator's truth dict (``vx``, ``vy``, ``a`` in SI units), drawn as lines.
-    Returns the written paths ([] when the result has no posterior).
+    result: a ``fit.FitResult`` with ``posterior`` set (``posterior.run_emcee``); the sampled
+    ones of vx, vy and a are drawn (fixed ones are not sampled). Panels: 2-D KDE contours of
+    each pair below the diagonal, 1-D KDE marginals on it. truth: a simulator's truth dict
+    (``vx``, ``vy``, ``a`` in SI units), drawn as reference points (and lines on the
+    marginals). Needs the ``plot`` and ``mcmc`` extras. Returns the written paths ([] when
+    the result has no posterior or fewer than two of the quantities were sampled).
     """
-    from .corner import corner_plot
-
     post = getattr(result, "posterior", None)
     if post is None:
         return []
     scales = {"vx": (100.0, "$|v_x|$ (cm/s)"), "vy": (100.0, "$|v_y|$ (cm/s)"), "a": (1e3, "$a$ (mm)")}
     names = [n for n in scales if n in post.samples]
-    if not names:
+    if len(names) < 2:
         return []
+    pyplot()                                              # the Agg backend before ArviZ draws
+    az = need("arviz", "mcmc", "the corner plot")
     samples = {n: scales[n][0] * np.asarray(post.samples[n], float) for n in names}
     truths = {}
     for n in names:
         v = (truth or {}).get(n)
         if v is not None and np.isfinite(v):
             truths[n] = scales[n][0] * (abs(float(v)) if n in ("vx", "vy") else float(v))
+    axes = az.plot_pair(samples, kind="kde", marginals=True, figsize=(3 * len(names), 3 * len(names)), textsize=10,
+                        labeller=az.labels.MapLabeller(var_name_map={n: scales[n][1] for n in names}),
+                        reference_values=truths if len(truths) == len(names) else None,
+                        backend="matplotlib", show=False)
+    axes = np.atleast_2d(axes)
+    for i, n in enumerate(names):
+        if n in truths:
+            axes[i, i].axvline(truths[n], color="C2", lw=1)
+    fig = axes[0, 0].figure
     src = Path(str(result.file)).name if result.file else "fit"
+    fig.suptitle(f"{src} [{result.index}]: emcee posterior ({post.n_steps} steps, burn-in {post.n_burn})",
+                 fontsize=10)
+    fig.subplots_adjust(left=0.11, right=0.97, bottom=0.09, top=0.93, wspace=0.25, hspace=0.25)
     path = Path(out_dir) / f"corner_{_result_stem(result)}.png"
-    corner_plot(samples, path, names=names, truths=truths, labels={n: scales[n][1] for n in names},
-                title=f"{src} [{result.index}]: emcee posterior ({post.n_steps} steps, burn-in {post.n_burn})")
+    save_figure(fig, path)
     return [path]

@@ -1,4 +1,4 @@
-"""Posterior sampling with emcee around a least-squares fit, with diagnostics and ArviZ-layout files.
+"""Posterior sampling with emcee around a least-squares fit, with emcee's diagnostics, saved with ArviZ.
 
 ``run_emcee`` explores the free parameters of a :class:`~tactile_jax.problem.FitProblem`
 with emcee's affine-invariant ensemble (stretch move). The log-probability is
@@ -7,9 +7,10 @@ with emcee's affine-invariant ensemble (stretch move). The log-probability is
 the point pulled toward the fit by ``problem.stretch``, where given), evaluated for the
 whole ensemble at once by one jit-compiled, vmapped JAX function. Sampler
 trouble comes back as data (``PosteriorResult.warnings``), never as an
-exception. ``to_inference_data`` converts a result to ArviZ (optional
-dependency); ``save_posterior`` writes the same InferenceData layout to HDF5 /
-netCDF-4 with h5py alone, and ``load_posterior`` reads it back.
+exception. ``to_inference_data`` converts a result to ArviZ and ``save_posterior``
+writes it with ArviZ's netCDF-4 writer (both need the ``mcmc`` extra: arviz);
+``load_posterior`` and ``read_attrs`` read a file back with h5py alone.
+How to read the file: docs/posterior.md.
 """
 
 from __future__ import annotations
@@ -17,8 +18,6 @@ from __future__ import annotations
 import datetime
 import json
 import math
-import os
-import tempfile
 from functools import partial
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
@@ -28,6 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._atomic import atomic_write
+from ._optional import need
 from .problem import FitProblem
 
 __all__ = ["PosteriorResult", "make_log_prob", "run_emcee", "to_inference_data", "save_posterior",
@@ -36,12 +37,16 @@ __all__ = ["PosteriorResult", "make_log_prob", "run_emcee", "to_inference_data",
 TAU_FACTOR = 50                   # the chain must be this many autocorrelation times long
 ACCEPTANCE_RANGE = (0.15, 0.8)    # healthy mean acceptance fraction of the stretch move
 _SUMMARY_QUANTILES = {"median": 50.0, "q16": 16.0, "q84": 84.0, "q2.5": 2.5, "q97.5": 97.5}
+_CHAIN_NOTE = ("emcee walker; the walkers of one ensemble are not independent chains (each move uses the "
+               "others' positions): r_hat across them is not a convergence test, read tau and ess")
+_DRAW_NOTE = "kept step of each walker (after burn-in and thinning)"
 
 
 class PosteriorResult(NamedTuple):
     """Outcome of ``run_emcee``: kept draws (after burn-in and thinning) and sampler diagnostics.
 
-    names: physical quantity names from ``problem.to_physical`` (e.g. ``"vx"``).
+    names: names of the sampled physical quantities from ``problem.to_physical`` (e.g. ``"vx"``):
+        those that vary over the draws; quantities of fixed parameters alone are in ``fixed``.
     samples: name -> (n_walkers, n_draws) physical draws (units of ``to_physical``:
         m/s, m, ...); chain = walker.
     theta: (n_walkers, n_draws, n_free) draws of the internal free parameters.
@@ -55,6 +60,8 @@ class PosteriorResult(NamedTuple):
     n_steps: steps run per walker (burn-in included). n_burn: steps discarded. thin: kept every ``thin``-th.
     warnings: human messages about the run (too short a chain, acceptance, stuck walkers); empty when healthy.
     walker_acceptance: (n_walkers,) acceptance fraction of each walker over the whole run.
+    fixed: name -> value of the physical quantities that depend on fixed parameters only
+        (one value for every draw, e.g. a gain ratio held at 1), in the units of ``to_physical``.
     """
 
     names: tuple[str, ...]
@@ -70,6 +77,7 @@ class PosteriorResult(NamedTuple):
     thin: int
     warnings: tuple[str, ...]
     walker_acceptance: np.ndarray
+    fixed: dict[str, float]
 
     @property
     def max_tau(self) -> float:
@@ -78,17 +86,37 @@ class PosteriorResult(NamedTuple):
         return float(np.max(tau)) if tau.size and np.all(np.isfinite(tau)) else math.nan
 
     def summary(self) -> dict[str, dict]:
-        """Per physical name: ``mean``, ``sd`` (ddof=1), ``median``, ``q16``, ``q84``, ``q2.5``, ``q97.5``.
-
-        Values are in the quantity's own units (m/s, m, ...)."""
+        """Per sampled quantity: ``mean``, ``sd`` (ddof=1), ``median``, ``q16``, ``q84``, ``q2.5``, ``q97.5``
+        in the quantity's own units (m/s, m, ...), and emcee's diagnostics of its chain: ``tau``
+        (integrated autocorrelation time, steps; NaN if not estimable) and ``ess``
+        (``n_walkers * (n_steps - n_burn) / tau``, capped at the number of draws)."""
         out = {}
         for name in self.names:
-            x = np.asarray(self.samples[name], float).ravel()
+            draws = np.asarray(self.samples[name], float)
+            x = draws.ravel()
             row = {"mean": float(np.mean(x)), "sd": float(np.std(x, ddof=1)) if x.size > 1 else math.nan}
             qs = np.percentile(x, list(_SUMMARY_QUANTILES.values()))
             row.update({k: float(q) for k, q in zip(_SUMMARY_QUANTILES, qs)})
+            tau = _quantity_tau(draws, self.thin)
+            row["tau"] = tau
+            row["ess"] = _ess(draws.shape[0], self.n_steps - self.n_burn, x.size, tau)
             out[name] = row
         return out
+
+
+def _quantity_tau(draws, thin) -> float:
+    """emcee's integrated autocorrelation time (steps) of one (n_walkers, n_draws) chain; NaN if not estimable."""
+    try:
+        # tol=0: the 50-tau rule is applied (and reported) by run_emcee itself
+        tau = float(emcee.autocorr.integrated_time(np.asarray(draws, float).T[:, :, None], tol=0, quiet=True)[0])
+    except Exception:  # noqa: BLE001 - a chain too short for any estimate
+        return math.nan
+    return thin * tau if math.isfinite(tau) and tau > 0 else math.nan
+
+
+def _ess(n_walkers, n_kept_steps, n_draws, tau) -> float:
+    """``n_walkers * n_kept_steps / tau`` capped at ``n_draws``; NaN when tau is NaN."""
+    return float(min(n_walkers * n_kept_steps / tau, n_draws)) if math.isfinite(tau) else math.nan
 
 
 # ---------------------------------------------------------------- log-probability
@@ -222,6 +250,8 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
         emcee's internal (legacy ``RandomState``) generator, so the same seed gives
         identical chains. progress: emcee's tqdm progress bar.
 
+    Physical quantities that do not vary over the draws (functions of fixed parameters
+    alone) go to ``PosteriorResult.fixed``, not ``samples``.
     Walkers start in a Gaussian ball of 0.1 Laplace sd (``problem.cov``; ``1e-4 |theta| + 1e-6``
     where that sd is 0 or not finite) around ``problem.theta``, kept inside the bounds. Warnings
     (as data): ``n_steps < 50 * max(tau)``, mean acceptance outside [0.15, 0.8], stuck walkers.
@@ -253,40 +283,55 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
     acc = float(np.mean(walker_acc))
     tau = _autocorr_time(sampler, burn, thin, n_free)
     n_draws = chain.shape[1]
-    ess = (float(min(n_walkers * (n_steps - burn) / tau.max(), n_walkers * n_draws))
-           if np.all(np.isfinite(tau)) else math.nan)
+    ess = _ess(n_walkers, n_steps - burn, n_walkers * n_draws, float(tau.max()) if np.all(np.isfinite(tau)) else math.nan)
 
     full = np.broadcast_to(np.asarray(problem.theta, float), chain.shape[:2] + (np.size(problem.theta),)).copy()
     full[..., idx] = chain
     phys = problem.to_physical(full)
-    samples = {str(k): np.broadcast_to(np.asarray(v, float), chain.shape[:2]).copy() for k, v in phys.items()}
+    samples, fixed = {}, {}
+    for k, v in phys.items():
+        v = np.broadcast_to(np.asarray(v, float), chain.shape[:2])
+        if np.all(v == v.flat[0]):                        # a function of fixed parameters only
+            fixed[str(k)] = float(v.flat[0])
+        else:
+            samples[str(k)] = v.copy()
     free_names = tuple(str(problem.names[i]) for i in idx)
     return PosteriorResult(
         names=tuple(samples), samples=samples, theta=chain, free_names=free_names, log_prob=lp,
         acceptance_fraction=acc, tau=tau, ess=ess, n_steps=int(n_steps), n_burn=burn, thin=int(thin),
         warnings=_diagnose(n_walkers, n_steps, tau, acc, walker_acc, lp, n_free),
-        walker_acceptance=walker_acc)
+        walker_acceptance=walker_acc, fixed=fixed)
 
 
-# ---------------------------------------------------------------- ArviZ InferenceData
+# ---------------------------------------------------------------- ArviZ InferenceData and files
 
 def _json_float(x):
     x = float(x)
     return x if math.isfinite(x) else None                # JSON has no NaN: null
 
 
-def _run_attrs(result: PosteriorResult) -> dict[str, Any]:
-    """Root attributes: scalars as such, lists and diagnostics as JSON strings."""
+def _provenance_attrs() -> dict[str, Any]:
     return {
         "created_by": "tactile_jax",
         "created_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "inference_library": "emcee",
         "inference_library_version": emcee.__version__,
+    }
+
+
+def _run_attrs(result: PosteriorResult) -> dict[str, Any]:
+    """Run attributes: provenance, emcee's diagnostics and settings; lists and dicts as JSON strings."""
+    return {
+        **_provenance_attrs(),
+        "comment": "chain = emcee walker (not independent chains: r_hat across walkers is not a convergence "
+                   "test); diagnostics: tau (steps), ess, acceptance_fraction, warnings",
         "tau": json.dumps([_json_float(t) for t in np.asarray(result.tau).ravel()]),
         "ess": json.dumps(_json_float(result.ess)),
+        "acceptance_fraction": float(result.acceptance_fraction),
         "warnings": json.dumps(list(result.warnings)),
         "free_names": json.dumps(list(result.free_names)),
-        "acceptance_fraction": float(result.acceptance_fraction),
+        "fixed": json.dumps({k: _json_float(v) for k, v in result.fixed.items()}),
+        "n_walkers": int(np.shape(result.log_prob)[0]),
         "n_steps": int(result.n_steps),
         "n_burn": int(result.n_burn),
         "thin": int(result.thin),
@@ -294,113 +339,93 @@ def _run_attrs(result: PosteriorResult) -> dict[str, Any]:
 
 
 def _user_attr(value):
-    if isinstance(value, (str, bool, int, float, np.integer, np.floating, np.bool_)):
+    if isinstance(value, (str, int, float, np.integer, np.floating)) and not isinstance(value, bool):
         return value
     return json.dumps(value, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+def _diagnostics(tau, ess) -> dict[str, float]:
+    return {"tau": float(tau), "ess": float(ess)}
 
 
 def to_inference_data(result: PosteriorResult, *, observed: dict | None = None, attrs: dict | None = None):
     """ArviZ ``InferenceData`` (arviz < 1) or ``xarray.DataTree`` (arviz >= 1) of ``result``.
 
-    Groups: ``posterior`` (physical quantities, dims (chain, draw), chain = walker),
-    ``unconstrained_posterior`` (internal free parameters), ``sample_stats`` (``lp``
-    (chain, draw); ``acceptance_rate`` (chain,) per walker over the whole run) and,
-    given ``observed`` (name -> array), ``observed_data``. Attributes: ``tau``,
-    ``ess``, ``warnings`` (JSON strings), run settings and ``attrs``.
-    Requires arviz (ImportError naming ``pip install arviz`` otherwise).
+    Groups: ``posterior`` (the sampled physical quantities, dims (chain, draw), chain =
+    walker; each with attributes ``tau`` (steps) and ``ess`` from ``result.summary()``),
+    ``unconstrained_posterior`` (internal free parameters, with ``tau`` and ``ess``),
+    ``sample_stats`` (``lp`` (chain, draw); ``acceptance_rate`` (chain,) per walker over
+    the whole run) and, given ``observed`` (name -> array), ``observed_data``. Attributes
+    of the whole and of ``posterior``: provenance, ``comment`` (how to read it), ``tau``,
+    ``ess``, ``warnings``, ``free_names``, ``fixed`` (JSON strings), ``acceptance_fraction``,
+    run settings and the user's ``attrs`` (non-scalars as JSON). Needs the ``mcmc`` extra
+    (``MissingExtra`` naming it otherwise).
     """
-    try:
-        import arviz as az
-        import xarray as xr
-    except ImportError as err:
-        raise ImportError("to_inference_data needs arviz: pip install arviz "
-                          "(or use save_posterior, which needs only h5py)") from err
+    az = need("arviz", "mcmc", "to_inference_data")
+    import xarray as xr
+
     n_walkers, n_draws = result.log_prob.shape
-    coords = {"chain": np.arange(n_walkers), "draw": np.arange(n_draws)}
+    coords = {"chain": ("chain", np.arange(n_walkers, dtype=np.int64), {"long_name": _CHAIN_NOTE}),
+              "draw": ("draw", np.arange(n_draws, dtype=np.int64), {"long_name": _DRAW_NOTE})}
+    cd = ("chain", "draw")
     run_attrs = {**_run_attrs(result), **{k: _user_attr(v) for k, v in (attrs or {}).items()}}
+    summary = result.summary()
+    n_kept = result.n_steps - result.n_burn
+    posterior = {k: (cd, np.asarray(v, float), _diagnostics(summary[k]["tau"], summary[k]["ess"]))
+                 for k, v in result.samples.items()}
+    unconstrained = {k: (cd, result.theta[..., i],
+                         _diagnostics(result.tau[i], _ess(n_walkers, n_kept, n_walkers * n_draws, result.tau[i])))
+                     for i, k in enumerate(result.free_names)}
+    stats = {"lp": (cd, np.asarray(result.log_prob, float)),
+             "acceptance_rate": (("chain",), np.asarray(result.walker_acceptance, float))}
+    provenance = {k: run_attrs[k] for k in _provenance_attrs()}
     groups = {
-        "posterior": xr.Dataset({k: (("chain", "draw"), np.asarray(v)) for k, v in result.samples.items()},
-                                coords=coords, attrs=run_attrs),
-        "unconstrained_posterior": xr.Dataset(
-            {k: (("chain", "draw"), result.theta[..., i]) for i, k in enumerate(result.free_names)},
-            coords=coords, attrs=run_attrs),
-        "sample_stats": xr.Dataset({"lp": (("chain", "draw"), result.log_prob),
-                                    "acceptance_rate": (("chain",), np.asarray(result.walker_acceptance))},
-                                   coords=coords, attrs=run_attrs),
+        "posterior": xr.Dataset(posterior, coords=coords, attrs=run_attrs),
+        "unconstrained_posterior": xr.Dataset(unconstrained, coords=coords, attrs=provenance),
+        "sample_stats": xr.Dataset(stats, coords=coords, attrs=provenance),
     }
     if observed:
         groups["observed_data"] = xr.Dataset(
             {k: ([f"{k}_dim_{i}" for i in range(np.ndim(v))], np.asarray(v)) for k, v in observed.items()},
-            attrs=run_attrs)
+            attrs=provenance)
     if hasattr(az, "InferenceData"):                      # arviz < 1.0
-        return az.InferenceData(**groups)
+        return az.InferenceData(attrs=run_attrs, **groups)
     tree = xr.DataTree.from_dict(groups)                  # arviz >= 1.0 works on DataTree
     tree.attrs.update(run_attrs)
     return tree
 
 
-# ---------------------------------------------------------------- HDF5 / netCDF-4 files
-
-def _write_group(h5, name, variables: dict[str, np.ndarray], dims: dict[str, tuple[str, ...]],
-                 coords: dict[str, np.ndarray], attrs: dict):
-    """One netCDF-4 group: coordinate variables as dimension scales, data variables attached to them."""
-    grp = h5.create_group(name, track_order=True)
-    for dim, values in coords.items():
-        ds = grp.create_dataset(dim, data=np.asarray(values))
-        ds.make_scale(dim)
-    for var, data in variables.items():
-        ds = grp.create_dataset(var, data=np.asarray(data))
-        for axis, dim in enumerate(dims[var]):
-            ds.dims[axis].attach_scale(grp[dim])
-    for k, v in attrs.items():
-        grp.attrs[k] = v
-    return grp
-
-
 def save_posterior(path, result: PosteriorResult, *, attrs: dict | None = None) -> Path:
-    """Write ``result`` to ``path`` (.h5 or .nc) in the ArviZ InferenceData netCDF-4 layout, with h5py only.
+    """Write ``result`` to ``path`` (.h5 or .nc, netCDF-4) with ArviZ: ``to_inference_data(...).to_netcdf``.
 
-    Groups ``posterior`` (one (chain, draw) dataset per physical quantity, units of
-    ``to_physical``), ``unconstrained_posterior`` (internal free parameters) and
-    ``sample_stats`` (``lp`` (chain, draw); ``acceptance_rate`` (chain,)), each with
-    ``chain`` and ``draw`` dimension scales so xarray / ArviZ ``from_netcdf`` read it.
-    Root attributes: ``created_by="tactile_jax"``, ``tau``, ``ess``, ``warnings``
-    (JSON strings), run settings and the user's ``attrs`` (non-scalars as JSON).
-    Atomic: a temporary file in the same folder is renamed over ``path``.
+    The layout and attributes are those of ``to_inference_data`` (groups ``posterior``,
+    ``unconstrained_posterior``, ``sample_stats``; physical quantities in the units of
+    ``to_physical``: m/s, m, ...; quantities of fixed parameters alone are not sampled
+    and are listed in the ``fixed`` attribute). ``az.from_netcdf`` or ``load_posterior``
+    read it back.
+
+    Reading the diagnostics: ``chain`` holds emcee's walkers so that ArviZ can read the
+    file, but the walkers of one ensemble are not independent chains (each move of a
+    walker is drawn from the positions of the others) and they start in a small ball
+    around the fit, so ArviZ's r_hat across them (``az.summary``) is not a convergence
+    test, and its ESS is not emcee's. The diagnostics to read are emcee's: ``tau``
+    (integrated autocorrelation time, steps, per free parameter in the attributes and
+    per quantity on each variable), ``ess`` (``n_walkers * (n_steps - n_burn) / tau``),
+    ``acceptance_fraction`` and ``warnings``; a run is long enough when
+    ``n_steps >= 50 * tau`` (otherwise ``warnings`` says so, and tau itself is
+    underestimated).
+
+    Atomic, with the permissions of a plain new file (``_atomic.atomic_write``); the
+    folder must exist. Needs the ``mcmc`` extra (arviz).
     """
-    import h5py
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    n_walkers, n_draws = result.log_prob.shape
-    coords = {"chain": np.arange(n_walkers, dtype=np.int64), "draw": np.arange(n_draws, dtype=np.int64)}
-    cd = ("chain", "draw")
-    root_attrs = {**_run_attrs(result), **{k: _user_attr(v) for k, v in (attrs or {}).items()}}
-    group_attrs = {k: root_attrs[k] for k in ("created_at", "created_by", "inference_library",
-                                              "inference_library_version")}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w", track_order=True) as h5:
-            samples = {k: np.asarray(v, float) for k, v in result.samples.items()}
-            _write_group(h5, "posterior", samples, dict.fromkeys(samples, cd), coords, group_attrs)
-            theta = {k: result.theta[..., i] for i, k in enumerate(result.free_names)}
-            _write_group(h5, "unconstrained_posterior", theta, dict.fromkeys(theta, cd), coords, group_attrs)
-            stats = {"lp": np.asarray(result.log_prob, float),
-                     "acceptance_rate": np.asarray(result.walker_acceptance, float)}
-            _write_group(h5, "sample_stats", stats, {"lp": cd, "acceptance_rate": ("chain",)},
-                         coords, group_attrs)
-            for k, v in root_attrs.items():
-                h5.attrs[k] = v
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    idata = to_inference_data(result, attrs=attrs)
+    return atomic_write(path, idata.to_netcdf)
 
 
 def load_posterior(path) -> dict[str, dict[str, np.ndarray]]:
-    """Read a ``save_posterior`` file: group -> variable -> array (dimension scales ``chain``/``draw`` left out)."""
+    """Read a ``save_posterior`` file: group -> variable -> array (dimensions ``chain``/``draw`` left out).
+
+    Needs h5py alone (no arviz)."""
     import h5py
 
     out: dict[str, dict[str, np.ndarray]] = {}
@@ -414,19 +439,22 @@ def load_posterior(path) -> dict[str, dict[str, np.ndarray]]:
 
 
 def read_attrs(path) -> dict[str, Any]:
-    """Root attributes of a ``save_posterior`` file, JSON strings (``tau``, ``ess``, ``warnings``, ...) decoded."""
+    """Run attributes of a ``save_posterior`` file, JSON strings (``tau``, ``ess``, ``warnings``, ``fixed``, ...)
+    decoded; netCDF's own (``_NCProperties``, ...) left out. Needs h5py alone."""
     import h5py
 
     out: dict[str, Any] = {}
     with h5py.File(path, "r") as h5:
         for k, v in h5.attrs.items():
+            if k.startswith("_"):
+                continue
             v = v.decode() if isinstance(v, bytes) else v
             if isinstance(v, str):
                 try:
                     v = json.loads(v)
                 except ValueError:
                     pass
-            elif isinstance(v, np.generic):
-                v = v.item()
+            elif isinstance(v, (np.generic, np.ndarray)):
+                v = v.item() if np.size(v) == 1 else v.tolist()     # netCDF stores a number as a 1-array
             out[k] = v
     return out

@@ -108,12 +108,16 @@ def _variable_line(result, spec, truth, free) -> str:
     rel = 100 * err / abs(value) if value != 0 else math.inf
     rel = f"({rel:.2f} %)" if rel < 1000 else (f"({rel:.3g} %)" if math.isfinite(rel) else "(n/a %)")
     line = f"{v_txt} +/- {e_txt} {rel}"
-    if truth_txt:
-        dev = (value - t) / err if err > 0 else math.nan
-        line += f"    {truth_txt}, {dev:+.2f} sigma" if math.isfinite(dev) else f"    {truth_txt}"
     upper = getattr(result, f"{attr}_upper", None) if attr in ("vx", "vy") else None
     if _finite(upper):
+        # the profile bound, not the Laplace sigma, is what this component's error means: the truth is
+        # placed against the bound, so that a deviation in sigma never sits beside "consistent with 0"
         line += f"  (consistent with 0, 95 % upper bound {_num(upper * scale, 3)} {unit})"
+        if truth_txt:
+            line += f"    {truth_txt}, {'inside' if t <= upper else 'above'} the bound"
+    elif truth_txt:
+        dev = (value - t) / err if err > 0 else math.nan
+        line += f"    {truth_txt}, {dev:+.2f} sigma" if math.isfinite(dev) else f"    {truth_txt}"
     return head + line
 
 
@@ -255,8 +259,11 @@ def fit_report(result, *, truth: dict | None = None) -> str:
     lines.append(f"    solver:    {result.solver}, precision {result.precision}")
 
     lines.append("[[Fit Statistics]]")
-    stats = (("data points (bins)", str(int(result.n_bins))),
-             ("variables", str(int(result.n_params)) if result.n_params else "n/a"),
+    n_res, n_par = int(getattr(result, "n_residuals", 0) or 0), int(result.n_params or 0)
+    stats = (("residuals", f"{n_res} (from {int(result.n_bins)} usable frequency bins)" if n_res
+              else "n/a"),
+             ("variables", str(n_par) if n_par else "n/a"),
+             ("degrees of freedom", str(n_res - n_par) if n_res and n_par else "n/a"),
              ("chi-square", _num(result.chi2, 6)), ("reduced chi-square", _num(result.redchi, 5)),
              ("Akaike info crit", _num(result.aic, 6)), ("Bayesian info crit", _num(result.bic, 6)),
              ("condition number", _num(result.cond, 3)))

@@ -327,6 +327,18 @@ def _spectra_psd(m=16) -> SpectraData:
                        whitening=np.array([[1.0, -0.9, 0.1], [1.0, -0.8, 0.05]]), fs=1000.0)
 
 
+def _spectra_matrix(m=16, g=3) -> SpectraData:
+    """The whole 4 x 4 spectral matrix with its groups of segments (what ``tactile-jax spectra`` writes)."""
+    rng = np.random.default_rng(2)
+    count = np.array([2.0, 1.0, 3.0])[:g]
+    gpsd = rng.uniform(0.1, 2.0, (g, 4, m))
+    gcsd = rng.standard_normal((g, 2, m)) + 1j * rng.standard_normal((g, 2, m))
+    gxy = rng.standard_normal((g, 4, m)) + 1j * rng.standard_normal((g, 4, m))
+    mean = lambda a: np.tensordot(count, a, axes=1) / count.sum()  # noqa: E731
+    return _spectra_psd(m)._replace(psd=mean(gpsd), csd=mean(gcsd), xy=mean(gxy), group_count=count,
+                                    group_psd=gpsd, group_csd=gcsd, group_xy=gxy)
+
+
 def _spectra_ratio(m=16) -> SpectraData:
     omega = np.linspace(10.0, 600.0, m)
     ratio = np.exp(-np.outer([1.0, 2.0], omega) * 1e-3)
@@ -334,14 +346,15 @@ def _spectra_ratio(m=16) -> SpectraData:
 
 
 @pytest.mark.parametrize("suffix", SUFFIXES)
-@pytest.mark.parametrize("make", [_spectra_psd, _spectra_ratio])
+@pytest.mark.parametrize("make", [_spectra_psd, _spectra_ratio, _spectra_matrix])
 def test_spectra_round_trip(tmp_path, suffix, make):
     data = make()
     path = tmp_path / f"spec{suffix}"
     assert write_spectra(path, data) == path
     got = read_spectra(path)
     assert got.source == str(path)
-    for field in ("omega", "psd", "csd", "ratio", "ratio_err", "kernel", "whitening"):
+    for field in ("omega", "psd", "csd", "xy", "group_count", "group_psd", "group_csd", "group_xy", "ratio",
+                  "ratio_err", "kernel", "whitening"):
         want, have = getattr(data, field), getattr(got, field)
         if want is None:
             assert have is None, field
@@ -396,6 +409,47 @@ def test_bad_spectra(tmp_path, suffix, over, code):
     err = _expect(path, code, read_spectra)
     if over.get("psd", 0) is None and "ratio" not in over:
         assert "'psd'" in str(err) and "'ratio'" in str(err)
+
+
+def _matrix_items(**over):
+    data = _spectra_matrix(m=8)
+    items = {k: getattr(data, k) for k in ("omega", "psd", "csd", "xy", "group_count", "group_psd", "group_csd",
+                                           "group_xy")}
+    items["depths"] = np.array(DEPTHS)
+    items.update(over)
+    return {k: v for k, v in items.items() if v is not None}
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".npz"])
+@pytest.mark.parametrize(
+    "over, code, needle",
+    [
+        ({"csd": None, "group_csd": None, "group_xy": None, "group_count": None, "group_psd": None},
+         "missing_key", "'xy' given without"),
+        ({"xy": np.ones((2, 8), complex)}, "bad_shape", "'xy' must have shape (4, M)"),
+        ({"group_psd": None}, "missing_key", "'group_psd'"),
+        ({"group_xy": None}, "missing_key", "'group_xy'"),
+        ({"xy": None}, "missing_key", "'group_xy' given without 'xy'"),
+        ({"group_count": np.array([2.0, 0.0, 3.0])}, "bad_shape", "must be > 0"),
+        ({"group_count": np.array([2.0, 1.0])}, "bad_shape", "'group_psd' must be"),
+        ({"group_psd": np.ones((3, 4, 7))}, "bad_shape", "'group_psd' must be"),
+        ({"group_csd": np.full((3, 2, 8), np.nan, complex)}, "nonfinite", "'group_csd'"),
+        ({"group_psd": np.ones((3, 4, 8))}, "bad_shape", "'group_psd' does not average to 'psd'"),
+        ({"group_count": np.array([1.0, 1.0, 1.0])}, "bad_shape", "does not average"),
+    ],
+)
+def test_bad_spectral_matrix(tmp_path, suffix, over, code, needle):
+    """The x-y cross-spectra and the groups: complete, of matching shapes, and averaging to the spectra."""
+    path = tmp_path / f"bad{suffix}"
+    _write_raw(path, **_matrix_items(**over))
+    err = _expect(path, code, read_spectra)
+    assert needle in str(err)
+
+
+def test_spectra_without_cross_pair_spectra_read_as_none(tmp_path):
+    path = write_spectra(tmp_path / "s.npz", _spectra_psd())
+    got = read_spectra(path)
+    assert got.psd is not None and got.xy is None and got.group_count is None and got.group_xy is None
 
 
 @pytest.mark.parametrize("suffix", SUFFIXES)

@@ -1,12 +1,17 @@
-"""Seeded statistical checks of the emcee posterior on a linear Gaussian toy model, and its files."""
+"""Seeded statistical checks of the emcee posterior on a linear Gaussian toy model, its files, its figure,
+``fit --mcmc`` as the user meets it, and the optional extras (arviz, matplotlib)."""
 
 import json
+import os
+import stat
+import sys
+from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.corner import corner_plot
+from tactile_jax._optional import MissingExtra
 from tactile_jax.lsq import least_squares
 from tactile_jax.posterior import (load_posterior, make_log_prob, read_attrs, run_emcee, save_posterior,
                                    to_inference_data)
@@ -76,16 +81,24 @@ def test_diagnostics(result):
     assert result.theta.shape == (32, n_draws, 2)
     assert result.log_prob.shape == (32, n_draws)
     assert result.samples["m"].shape == (32, n_draws)
-    assert result.names == ("m", "c", "q") and result.free_names == ("m", "c")
+    assert result.names == ("m", "c") and result.free_names == ("m", "c") and set(result.fixed) == {"q"}
     assert 0.2 <= result.acceptance_fraction <= 0.8
     assert result.tau.shape == (2,) and np.all(np.isfinite(result.tau))
     assert result.ess == pytest.approx(32 * n_draws / result.tau.max())
     assert result.warnings == ()
 
 
-def test_fixed_parameter_stays_fixed(short):
-    result = short
-    assert np.all(result.samples["q"] == Q_FIXED)
+def test_fixed_parameter_is_not_sampled(short):
+    assert short.names == ("m", "c") and "q" not in short.samples
+    assert short.fixed == {"q": pytest.approx(Q_FIXED)}
+    assert set(short.summary()) == {"m", "c"}
+
+
+def test_summary_carries_emcee_tau_and_ess(short):
+    summ = short.summary()
+    assert summ["m"]["tau"] == pytest.approx(short.tau[0]) and summ["c"]["tau"] == pytest.approx(short.tau[1])
+    n_walkers, n_draws = short.log_prob.shape
+    assert summ["m"]["ess"] == pytest.approx(min(n_walkers * 75 / short.tau[0], n_walkers * n_draws))
 
 
 def test_short_chain_warns_and_seed_reproduces(short_runs):
@@ -138,10 +151,11 @@ def test_too_few_walkers(problem):
 
 def test_save_load_round_trip(tmp_path, short):
     result = short
-    path = save_posterior(tmp_path / "post.nc", result, attrs={"run": "toy", "truth": {"m": 1.3}})
-    assert path.exists() and not list(tmp_path.glob("*.tmp"))
+    path = save_posterior(tmp_path / "post.nc", result, attrs={"run": "toy", "truth": {"m": 1.3}, "flag": True})
+    assert path.exists() and not list(tmp_path.glob(".*tmp"))
     groups = load_posterior(path)
     assert set(groups) == {"posterior", "unconstrained_posterior", "sample_stats"}
+    assert set(groups["posterior"]) == {"m", "c"}                     # q is fixed: an attribute, not draws
     for name in result.names:
         np.testing.assert_array_equal(groups["posterior"][name], result.samples[name])
     np.testing.assert_array_equal(groups["unconstrained_posterior"]["m"], result.theta[..., 0])
@@ -149,51 +163,140 @@ def test_save_load_round_trip(tmp_path, short):
     assert groups["sample_stats"]["acceptance_rate"].shape == (32,)
     attrs = read_attrs(path)
     assert attrs["created_by"] == "tactile_jax" and attrs["run"] == "toy" and attrs["truth"] == {"m": 1.3}
+    assert attrs["flag"] is True and attrs["fixed"] == {"q": pytest.approx(Q_FIXED)}
     np.testing.assert_allclose(attrs["tau"], result.tau)
     assert attrs["ess"] == pytest.approx(result.ess) and attrs["warnings"] == list(result.warnings)
-
-    import h5py
-    with h5py.File(path, "r") as h5:
-        ds = h5["posterior/m"]
-        assert [ds.dims[i][0].name for i in range(2)] == ["/posterior/chain", "/posterior/draw"]
-        assert json.loads(h5.attrs["warnings"]) == list(result.warnings)
+    assert attrs["acceptance_fraction"] == pytest.approx(result.acceptance_fraction)
+    assert attrs["n_walkers"] == 32 and attrs["n_steps"] == 100 and attrs["n_burn"] == 25
+    assert not any(k.startswith("_") for k in attrs)
 
     az = pytest.importorskip("arviz")
     idata = az.from_netcdf(path)
     np.testing.assert_array_equal(np.asarray(idata["posterior"]["m"]), result.samples["m"])
     assert dict(idata["posterior"].sizes) == {"chain": 32, "draw": result.theta.shape[1]}
+    assert idata["posterior"]["m"].attrs["tau"] == pytest.approx(result.summary()["m"]["tau"])
+    assert "not independent chains" in idata["posterior"]["chain"].attrs["long_name"]
+    summary = az.summary(idata)
+    assert list(summary.index) == ["m", "c"] and np.all(np.isfinite(summary["r_hat"]))
+
+
+def test_posterior_file_has_the_permissions_of_a_plain_file(tmp_path, short):
+    old = os.umask(0o027)
+    try:
+        path = save_posterior(tmp_path / "post.h5", short)
+        plain = tmp_path / "plain.txt"
+        plain.write_text("x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode) == 0o640
 
 
 def test_to_inference_data(short):
     result = short
-    az = pytest.importorskip("arviz")
+    pytest.importorskip("arviz")
     idata = to_inference_data(result, observed={"y": np.arange(3.0)}, attrs={"run": "toy"})
     np.testing.assert_array_equal(np.asarray(idata["sample_stats"]["lp"]), result.log_prob)
     assert json.loads(idata["posterior"].attrs["tau"]) == pytest.approx(list(result.tau))
-    del az
+    assert json.loads(idata["posterior"].attrs["fixed"]) == {"q": pytest.approx(Q_FIXED)}
 
 
-def test_to_inference_data_without_arviz(short, monkeypatch):
-    result = short
-    import builtins
+@pytest.fixture
+def no_module(monkeypatch):
+    """``no_module("arviz")``: importing that module (and its submodules) raises ImportError for this test."""
 
-    real_import = builtins.__import__
+    def block(name):
+        for mod in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+            monkeypatch.delitem(sys.modules, mod)
+        monkeypatch.setitem(sys.modules, name, None)
 
-    def no_arviz(name, *args, **kwargs):
-        if name == "arviz":
-            raise ImportError("no arviz")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", no_arviz)
-    with pytest.raises(ImportError, match="pip install arviz"):
-        to_inference_data(result)
+    return block
 
 
-def test_corner_plot(tmp_path, short):
-    result = short
-    path = corner_plot(result.samples, tmp_path / "corner.png", names=["m", "c", "q"],
-                       truths={"m": 1.3, "c": -0.4}, labels={"m": "m (m/s)"}, title="toy posterior")
-    assert path.exists() and path.stat().st_size > 5000
+def test_to_inference_data_and_save_without_arviz(short, no_module, tmp_path):
+    no_module("arviz")
+    with pytest.raises(MissingExtra, match=r'pip install "tactile_jax\[mcmc\]"'):
+        to_inference_data(short)
+    with pytest.raises(MissingExtra, match=r"tactile_jax\[mcmc\]"):
+        save_posterior(tmp_path / "post.h5", short)
+    assert not list(tmp_path.iterdir())
+
+
+def test_corner_plot_with_arviz(tmp_path, short):
+    from tactile_jax.plotting import plot_posterior_corner
+
+    post = short._replace(names=("vx", "a"), samples={"vx": short.samples["m"] / 100, "a": short.samples["c"] / 1e3})
+    fit = SimpleNamespace(posterior=post, file="toy.h5", index=0)
+    paths = plot_posterior_corner(fit, tmp_path, truth={"vx": 0.013, "a": -0.0004})
+    assert paths == [tmp_path / "corner_toy_0.png"] and paths[0].stat().st_size > 10_000
+    one = post._replace(names=("vx",), samples={"vx": post.samples["vx"]})
+    assert plot_posterior_corner(SimpleNamespace(posterior=one, file="toy.h5", index=0), tmp_path) == []
+
+
+def test_figures_without_matplotlib(no_module, monkeypatch, tmp_path):
+    """plotting imports without matplotlib; drawing names the plot extra, and so do compare_r's figures."""
+    no_module("matplotlib")
+    monkeypatch.delitem(sys.modules, "tactile_jax.plotting", raising=False)
+    import importlib
+
+    plotting = importlib.import_module("tactile_jax.plotting")
+    with pytest.raises(MissingExtra, match=r'plotting needs matplotlib: pip install "tactile_jax\[plot\]"'):
+        plotting.pyplot()
+    from tactile_jax.compare_r import write_figures
+
+    with pytest.raises(MissingExtra, match=r"tactile_jax\[plot\]"):
+        write_figures(tmp_path)
+
+
+@pytest.mark.slow
+def test_demo_without_matplotlib_writes_a_note(no_module, monkeypatch, tmp_path):
+    """The demo without matplotlib: no figure, a note naming the plot extra (spectra compile: seconds)."""
+    from tactile_jax import demo
+
+    monkeypatch.setattr(demo, "fit_recording", lambda rec, options: SimpleNamespace(vx=0.023, a=3e-3))
+    no_module("matplotlib")
+    res = demo.run_demo(tmp_path, duration=2.0)
+    assert res.figure is None and not list(tmp_path.iterdir())
+    assert res.note == 'figure not written: plotting needs matplotlib: pip install "tactile_jax[plot]"'
+
+
+# ---------------------------------------------------------------- fit --mcmc as the user meets it
+
+@pytest.mark.parametrize("flag, extra, module", [("--mcmc", "mcmc", "arviz"), ("--plot", "plot", "matplotlib")])
+def test_fit_names_a_missing_extra_before_fitting(no_module, tmp_path, flag, extra, module):
+    from click.testing import CliRunner
+
+    from tactile_jax.cli import main
+
+    no_module(module)
+    args = [flag] if flag == "--mcmc" else [flag, str(tmp_path / "figs")]
+    res = CliRunner().invoke(main, ["fit", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "r.json"), *args])
+    assert res.exit_code == 2
+    assert res.output.strip() == f'error: {flag} needs {module}: pip install "tactile_jax[{extra}]"'
+    assert not list(tmp_path.iterdir())                   # no fit ran, no results file
+
+
+def _fit_of(problem):
+    """What ``cli._attach_mcmc`` reads of a ``FitResult``."""
+    return SimpleNamespace(problem=problem, status="ok", file="toy.h5", index=0, truth={}, posterior=None,
+                           to_record=lambda: {})
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_attach_mcmc_shows_progress_and_the_posterior_file(problem, tmp_path, capsys, quiet):
+    from tactile_jax import cli
+
+    fit, row = _fit_of(problem), {}
+    cli._POSTERIOR_FILES.clear()
+    cli._attach_mcmc(fit, row, tmp_path / "r.json", dict(n_walkers=8, n_steps=40, seed=1, progress=not quiet))
+    err = capsys.readouterr().err
+    path = tmp_path / "r_toy_0_posterior.h5"
+    assert row["posterior_file"] == str(path) and path.exists() and fit.posterior is not None
+    if quiet:
+        assert err == ""
+    else:
+        assert "40/40" in err                             # emcee's tqdm bar, on a stderr that is no TTY
+        post = fit.posterior
+        assert err.splitlines()[-1] == f"posterior: {path} (ESS {post.ess:.0f}, tau {post.max_tau:.1f} steps)"
 
 
 def test_diagnose_messages():

@@ -19,12 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..errors import TactileInputError
 from . import band as band_mod
 from .core import ITERATIONS as ITERATIONS, Located, Record, Settings, Start, Summary, core, no_start
 from .data import JointData, Measured
 from .model import ModelSpectra
-from .segments import KERNEL_OFFSETS, N_BINS, N_GROUPS, AR_ORDER, Segments, segments
+from .segments import Segments, from_spectra, segments
 
 __all__ = ["record", "record_from_spectra", "fit_one", "fit_many", "refit", "resolution_want"]
 
@@ -174,48 +173,16 @@ def record(signals, fs: float, depths, *, gains=(1.0, 1.0), velocity=None, metho
     return _record(seg, depths, gains, velocity)
 
 
-def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, kernel=None, bin_factor=None,
-                        whitening=None, fs=None, gains=(1.0, 1.0), velocity=None, source=None) -> Record:
-    """A ``Record`` of given spectra: omega (M,) rad/s uniformly spaced from a multiple of the spacing,
-    psd (4, M), csd (2, M) complex; one group (no jackknife), no x-y spectra (no chain).
-    kernel: (offsets in bins, weights) of the estimator's spectral window (None: one bin)."""
-    omega = np.asarray(omega, float)
-    d = np.diff(omega)
-    if omega.size < 8 or not np.allclose(d, d[0], rtol=1e-6) or d[0] <= 0:
-        raise TactileInputError("fitting PSD/CSD needs at least 8 uniformly spaced omega bins", source=source,
-                                code="bad_shape")
-    d_omega = float(d[0])
-    first = omega[0] / d_omega
-    if abs(first - round(first)) > 1e-6:
-        raise TactileInputError("omega must lie on a grid k * d_omega (a bin at omega = k * spacing)", source=source,
-                                code="bad_shape")
-    first = int(round(first))
-    m = min(omega.size, N_BINS - first)
-    if m < 8:
-        raise TactileInputError(f"the spectra start at bin {first}, beyond the fit's grid of {N_BINS} bins",
-                                source=source, code="bad_shape")
-    auto = np.zeros((N_GROUPS, 4, N_BINS))
-    cs = np.zeros((N_GROUPS, 2, N_BINS), complex)
-    count = np.zeros(N_GROUPS)
-    auto[0, :, first:first + m] = np.asarray(psd, float)[:, :m]
-    cs[0, :, first:first + m] = np.asarray(csd, complex)[:, :m]
-    count[0] = 1.0
-    if kernel is None:
-        kernel = ((0.0,), (1.0,))
-    offsets, weights = (np.asarray(k, float) for k in kernel)
-    kern = np.zeros(KERNEL_OFFSETS.size)
-    pos = np.clip(np.rint((offsets - KERNEL_OFFSETS[0]) * 2).astype(int), 0, KERNEL_OFFSETS.size - 1)
-    np.add.at(kern, pos, weights)
-    coeffs = np.zeros((2, AR_ORDER + 1))
-    coeffs[:, 0] = 1.0
-    if whitening is not None:
-        w = np.asarray(whitening, float)
-        coeffs[:, :w.shape[-1]] = w
-    fs = float(fs) if fs else d_omega * N_BINS / math.pi          # only the whitening filter uses it
-    seg = Segments(auto, cs, np.zeros((N_GROUPS, 4, N_BINS), complex), count, np.asarray(d_omega),
-                   np.asarray(first + m), np.asarray(float(n_segments)), np.asarray(1.0),
-                   np.asarray(float(bin_factor) if bin_factor else 1.0), kern / kern.sum(), coeffs,
-                   np.asarray(fs), np.asarray(0))
+def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, xy=None, groups=None, kernel=None,
+                        bin_factor=None, whitening=None, fs=None, gains=(1.0, 1.0), velocity=None,
+                        source=None) -> Record:
+    """A ``Record`` of given spectra (``segments.from_spectra``): omega (M,) rad/s uniformly spaced from a
+    multiple of the spacing, psd (4, M), csd (2, M) and xy (4, M) complex (None: no x-y spectra, no chain);
+    groups: each group's (count, psd, csd, xy) for the jackknife (None: one group, no jackknife);
+    n_segments: the effective number of independent segments. kernel: (offsets in bins, weights) of the
+    estimator's spectral window (None: one bin)."""
+    seg = from_spectra(omega, psd, csd, xy, dof=n_segments, groups=groups, kernel=kernel, bin_factor=bin_factor,
+                       whitening=whitening, fs=fs, source=source)
     return _record(seg, depths, gains, velocity)
 
 
