@@ -29,9 +29,10 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from tactile_jax.errors import TactileInputError  # noqa: E402
-from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
-from tactile_jax.scene import Scene, simulate  # noqa: E402
-from tactile_jax.texture import RandomTexture  # noqa: E402
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording  # noqa: E402
+from tactile_jax.simulation.scene import Scene, simulate  # noqa: E402
+from tactile_jax.simulation.texture import RandomTexture  # noqa: E402
 
 
 def scenes(n: int, seed: int = 2026, large_fraction: float = 0.15, snr_db: float | None = None):
@@ -182,7 +183,7 @@ def figure(rows, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tactile_jax.plotting import provenance
+    from tactile_jax.viz.figures import provenance
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     for ax, name in zip(axes, ("vx", "vy", "a")):

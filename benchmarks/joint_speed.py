@@ -123,8 +123,8 @@ def _scenes(path: Path):
     import dataclasses
 
     from tactile_jax.errors import TactileInputError
-    from tactile_jax.scene import Scene, simulate
-    from tactile_jax.texture import RandomTexture
+    from tactile_jax.simulation.scene import Scene, simulate
+    from tactile_jax.simulation.texture import RandomTexture
 
     clean, truth = [], []
     for (vx, vy), a, seed in SCENES:
@@ -153,8 +153,8 @@ def _draw(clean, j):
 
 
 def _recording(x, j):
-    from tactile_jax.recording import Recording
-    from tactile_jax.sensor import PAPER_SENSOR
+    from tactile_jax.io.recording import Recording
+    from tactile_jax.model.sensor import PAPER_SENSOR
 
     return Recording(signals=x, fs=FS, depths=(PAPER_SENSOR.d1, PAPER_SENSOR.d2),
                      curvature_radius=PAPER_SENSOR.curvature_radius, source=f"joint_speed record {j}")
@@ -180,8 +180,8 @@ def _stage_programs():
     """The stages ``core`` composes, as separate functions (same calls as ``core.core``)."""
     import jax.numpy as jnp
 
-    from tactile_jax.joint import core as core_mod
-    from tactile_jax.joint.solve import levenberg_marquardt
+    from tactile_jax.inference import core as core_mod
+    from tactile_jax.inference.solve import levenberg_marquardt
 
     def solve(prep, start):
         starts, free, skip = prep.starts, prep.free, False
@@ -202,8 +202,8 @@ def _stage_programs():
 
 
 def _row(s):
-    from tactile_jax.fit import result_from_summary
-    from tactile_jax.model_select import model_name
+    from tactile_jax.inference.result import result_from_summary
+    from tactile_jax.inference.select import model_name
 
     return result_from_summary(s, model=model_name(s.free, False)).to_record()
 
@@ -218,9 +218,9 @@ class StageRunner:
     ``partial`` (JSON) before and after each measurement, so a process ended by ``_watch`` leaves them."""
 
     def __init__(self, args, clean, comp: Compiles, partial: Path):
-        from tactile_jax.joint import run
-        from tactile_jax.joint.core import Settings, no_start
-        from tactile_jax.sensor import PAPER_SENSOR
+        from tactile_jax.inference import run
+        from tactile_jax.inference.core import Settings, no_start
+        from tactile_jax.model.sensor import PAPER_SENSOR
 
         self.args, self.clean, self.comp, self.partial = args, clean, comp, partial
         self.run, self.settings, self.no_start = run, Settings(), no_start
@@ -335,7 +335,8 @@ class StageRunner:
 
     def _fit_recording(self):
         """``fit_recording`` of record 0, counting the core calls its layers make (refits go through fit_one)."""
-        from tactile_jax.fit import FitOptions, fit_recording
+        from tactile_jax.inference.options import FitOptions
+        from tactile_jax.inference.fit import fit_recording
 
         key = "one/fit_recording"
         run = self.run
@@ -430,8 +431,9 @@ def cold_fit(path: str, limit: float) -> dict:
     comp = Compiles()
     jax.monitoring.register_event_duration_secs_listener(comp.listen)
     t0 = time.perf_counter()
-    from tactile_jax.fit import FitOptions, fit_recording
-    from tactile_jax.io import read_recording
+    from tactile_jax.inference.options import FitOptions
+    from tactile_jax.inference.fit import fit_recording
+    from tactile_jax.io.files import read_recording
 
     rec = read_recording(path)
     t_import = time.perf_counter() - t0
@@ -481,7 +483,7 @@ def persistent_cache(files: list[Path], work: Path, limit: float) -> dict:
 
     try:
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import tactile_jax.cli, tactile_jax.fit"], env=env, check=True)
+        subprocess.run([sys.executable, "-c", "import tactile_jax.cli, tactile_jax.inference.fit"], env=env, check=True)
         out["import_only_s"] = time.perf_counter() - t0
         call("cold (fresh cache)", files[:1])
         call("warm (another file)", files[1:2])
@@ -498,7 +500,7 @@ def machine() -> dict:
     import jaxlib
     import scipy
 
-    from tactile_jax.plotting import provenance
+    from tactile_jax.viz.figures import provenance
 
     dev = jax.devices()[0]
     try:
@@ -566,7 +568,7 @@ def table(res: dict, args) -> str:
     pc = res.get("persistent_cache")
     if pc:
         lines += ["", f"persistent cache (`tactile-jax fit FILE --out X.json --quiet`, TACTILE_JAX_CACHE=<tmp>/jax; "
-                      f"`import tactile_jax.cli, tactile_jax.fit` alone {pc['import_only_s']:.2f} s):", "",
+                      f"`import tactile_jax.cli, tactile_jax.inference.fit` alone {pc['import_only_s']:.2f} s):", "",
                   "| run | files | wall s | exit | statuses | cache files after |", "|---|---|---|---|---|---|"]
         for e in pc["runs"]:
             lines.append(f"| {e['run']} | {e['files']} | {e['wall_s']:.2f} | {e['rc']} | {e['statuses']} | "
@@ -604,7 +606,7 @@ def main(argv=None):
     print("stages (one record, then the chunk):", file=sys.stderr)
     res["stages"] = run_stages(args, args.out / "joint_speed_partial.json")
 
-    from tactile_jax.io import write_recording
+    from tactile_jax.io.files import write_recording
 
     work = Path(tempfile.mkdtemp(prefix="tjx_speed_"))
     try:

@@ -69,7 +69,7 @@ def _scenes(path: Path):
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from tactile_jax.scene import Scene, simulate
+    from tactile_jax.simulation.scene import Scene, simulate
 
     clean = []
     for (vx, vy), a, seed in SCENES:
@@ -92,9 +92,9 @@ def recordings(out: Path, n: int) -> list[Path]:
     if missing:
         import numpy as np
 
-        from tactile_jax.io import write_recording
-        from tactile_jax.recording import Recording
-        from tactile_jax.sensor import PAPER_SENSOR
+        from tactile_jax.io.files import write_recording
+        from tactile_jax.io.recording import Recording
+        from tactile_jax.model.sensor import PAPER_SENSOR
 
         clean = _scenes(out / "memory_scenes.npz")
         folder.mkdir(parents=True, exist_ok=True)
@@ -195,8 +195,9 @@ def loop_child(listing: str) -> None:
     import jax
 
     import tactile_jax.cli  # noqa: F401  (float64 and the persistent cache, as the command sets them)
-    from tactile_jax.fit import FitResult, fit_recording
-    from tactile_jax.io import read_recording
+    from tactile_jax.inference.result import FitResult
+    from tactile_jax.inference.fit import fit_recording
+    from tactile_jax.io.files import read_recording
 
     events = collections.Counter()
 
@@ -308,7 +309,7 @@ def _count(items):
 
 def figure(res: dict, path: Path) -> Path | None:
     try:
-        from tactile_jax.plotting import pyplot, save_figure
+        from tactile_jax.viz.figures import pyplot, save_figure
         plt = pyplot()
     except Exception as err:  # noqa: BLE001 - the figure is an extra
         print(f"no figure: {err}", file=sys.stderr)

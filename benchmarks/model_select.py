@@ -23,9 +23,10 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np
 
-from tactile_jax.fit import FitOptions, fit_recording
-from tactile_jax.plotting import provenance
-from tactile_jax.scene import Scene, simulate
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording
+from tactile_jax.viz.figures import provenance
+from tactile_jax.simulation.scene import Scene, simulate
 
 
 def run(radii, seeds, speed, duration):

@@ -139,10 +139,10 @@ if __name__ == "__main__":
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from tactile_jax.demo import paper_fig5_scene
-    from tactile_jax.r_curve import log_r_exact as jax_log_r
-    from tactile_jax.scene import simulate
-    from tactile_jax.spectra import default_nperseg
+    from tactile_jax.cli.demo import paper_fig5_scene
+    from tactile_jax.model.r_curve import log_r_exact as jax_log_r
+    from tactile_jax.simulation.scene import simulate
+    from tactile_jax.spectral.estimate import default_nperseg
 
     alpha = np.geomspace(1.0, 1e6, 50)
     for a in (1e-4, 3e-3, 5e-2):

@@ -95,7 +95,7 @@ def welch_floor(batch, fs, nperseg):
 
 if __name__ == "__main__":  # pragma: no cover
     sys.path.insert(0, ".")
-    from tactile_jax.io import read_recording
+    from tactile_jax.io.files import read_recording
 
     rec = read_recording(sys.argv[1])
     sig = rec.signals if rec.signals.ndim == 3 else rec.signals[None]

@@ -36,13 +36,13 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import peer_lmfit  # noqa: E402
 
-from tactile_jax.closed_form import radius_from_offset, slope_speed  # noqa: E402
-from tactile_jax.fit import fit_recording  # noqa: E402
-from tactile_jax.pair_fit import fit_pair, pair_leakage  # noqa: E402
-from tactile_jax.plotting import provenance  # noqa: E402
-from tactile_jax.scene import Scene, simulate  # noqa: E402
-from tactile_jax.spectra import amplitude_ratio, estimate_spectra, usable_band, whitened_psd  # noqa: E402
-from tactile_jax.texture import RandomTexture  # noqa: E402
+from tactile_jax.model.closed_form import radius_from_offset, slope_speed  # noqa: E402
+from tactile_jax.inference.fit import fit_recording  # noqa: E402
+from tactile_jax.inference.pair_fit import fit_pair, pair_leakage  # noqa: E402
+from tactile_jax.viz.figures import provenance  # noqa: E402
+from tactile_jax.simulation.scene import Scene, simulate  # noqa: E402
+from tactile_jax.spectral.estimate import amplitude_ratio, estimate_spectra, usable_band, whitened_psd  # noqa: E402
+from tactile_jax.simulation.texture import RandomTexture  # noqa: E402
 
 METHODS = ("slope", "pair fit", "lmfit peer", "joint fit")
 

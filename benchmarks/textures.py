@@ -42,10 +42,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import scipy_reference  # noqa: E402
 
 from tactile_jax.errors import TactileInputError  # noqa: E402
-from tactile_jax.fit import FitOptions, fit_recording  # noqa: E402
-from tactile_jax.scene import Scene, simulate  # noqa: E402
-from tactile_jax.spectra import default_nperseg  # noqa: E402
-from tactile_jax.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet  # noqa: E402
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording  # noqa: E402
+from tactile_jax.simulation.scene import Scene, simulate  # noqa: E402
+from tactile_jax.spectral.estimate import default_nperseg  # noqa: E402
+from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet  # noqa: E402
 
 KINDS = ("isotropic", "directional", "modes", "grating", "wire_net")
 FS, DURATION = 1000.0, 16.0
@@ -171,7 +172,7 @@ def figure(summary: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tactile_jax.plotting import provenance
+    from tactile_jax.viz.figures import provenance
 
     kinds = list(summary)
     x = np.arange(len(kinds))

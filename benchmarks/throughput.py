@@ -82,8 +82,8 @@ def pool(name: str, path: Path, n: int):
         z = np.load(path)
         return z["clean"], z["ref_rms"], z["truth"]
     from tactile_jax.errors import TactileInputError
-    from tactile_jax.scene import Scene, simulate
-    from tactile_jax.texture import RandomTexture
+    from tactile_jax.simulation.scene import Scene, simulate
+    from tactile_jax.simulation.texture import RandomTexture
 
     rng = np.random.default_rng({"x": 7, "oblique": 8}[name])
     n_samples = SETS[name]["n_samples"]
@@ -123,9 +123,9 @@ def draw(name: str, clean, ref, j: int):
 def _write_inputs(name, clean, ref, size, folder: Path) -> list[Path]:
     import numpy as np
 
-    from tactile_jax.io import write_recording
-    from tactile_jax.recording import Recording
-    from tactile_jax.sensor import PAPER_SENSOR
+    from tactile_jax.io.files import write_recording
+    from tactile_jax.io.recording import Recording
+    from tactile_jax.model.sensor import PAPER_SENSOR
 
     paths = []
     for f, start in enumerate(range(0, size, FILE_RECORDS)):
@@ -200,9 +200,9 @@ def one(name: str, size: int, args) -> dict:
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import scipy_reference as ref_mod
-    from tactile_jax import batch as batch_mod
-    from tactile_jax.sensor import PAPER_SENSOR
-    from tactile_jax.spectra import default_nperseg
+    from tactile_jax.batch import run as batch_mod
+    from tactile_jax.model.sensor import PAPER_SENSOR
+    from tactile_jax.spectral.estimate import default_nperseg
 
     compiles = collections.defaultdict(lambda: [0, 0.0])
     phase = ["setup"]
@@ -284,7 +284,7 @@ def machine() -> dict:
     import numpy as np
     import scipy
 
-    from tactile_jax.plotting import provenance
+    from tactile_jax.viz.figures import provenance
 
     dev = jax.devices()[0]
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
@@ -344,7 +344,7 @@ def figure(results, path: Path, m, args):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from tactile_jax.plotting import save_figure
+    from tactile_jax.viz.figures import save_figure
 
     labels = [f"{r['set']}\n{r['size']} rec" for r in results]
     series = (("run_batch, with compile", [r["rate_with_compile"] for r in results]),

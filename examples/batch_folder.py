@@ -22,9 +22,9 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 
 import tactile_jax as tj
-from tactile_jax.batch import run_batch
-from tactile_jax.fit import FitOptions
-from tactile_jax.results import read_results
+from tactile_jax.batch.run import run_batch
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.io.results import read_results
 
 
 def make_folder(folder, n_files: int = 4, duration: float = 8.0) -> Path:

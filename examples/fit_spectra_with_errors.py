@@ -21,8 +21,9 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 
 import tactile_jax as tj
-from tactile_jax.fit import FitOptions, fit_spectra
-from tactile_jax.io import SpectraData
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_spectra
+from tactile_jax.io.files import SpectraData
 
 
 def _line(name, res, truth):

@@ -16,9 +16,10 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import tactile_jax as tj
-from tactile_jax.fit import FitOptions, fit_recording
-from tactile_jax.plotting import plot_posterior_corner
-from tactile_jax.posterior import run_emcee
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording
+from tactile_jax.viz.figures import plot_posterior_corner
+from tactile_jax.uncertainty.posterior import run_emcee
 
 
 def main(duration: float = 16.0, steps: int = 2000, walkers: int = 48, out_dir: str = "figures"):

@@ -48,7 +48,7 @@ def main(duration: float = 16.0, radius: float = 2e-3, out: str | None = "rough_
     print(f"rough R (Eq. 6+26): |vx| = {100 * float(line.speed):.3f} +/- {100 * float(line.speed_err):.3f} cm/s, "
           f"a = {1e3 * rough_a:.3f} mm")
     if out:
-        from tactile_jax.plotting import plot_ratio_figure
+        from tactile_jax.viz.figures import plot_ratio_figure
         om = np.linspace(1.0, omega[band].max() * 1.1, 300)
         plot_ratio_figure(out, freq=np.asarray(spec.freq), psd_shallow=np.asarray(spec.psd[0]),
                           psd_deep=np.asarray(spec.psd[1]), omega=omega, log_ratio=lr, log_ratio_err=err, band=band,

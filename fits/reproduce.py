@@ -33,13 +33,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import tactile_jax as tj
-from tactile_jax import texture as textures
+from tactile_jax.simulation import texture as textures
 from tactile_jax.errors import TactileInputError
-from tactile_jax.fit import FitOptions, fit_recording
-from tactile_jax.joint.band import leakage_only
-from tactile_jax.lsq import least_squares
-from tactile_jax.plotting import provenance, save_figure
-from tactile_jax.r_curve import log_r_exact, log_r_hertz
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording
+from tactile_jax.spectral.band import leakage_only
+from tactile_jax.inference.lsq import least_squares
+from tactile_jax.viz.figures import provenance, save_figure
+from tactile_jax.model.r_curve import log_r_exact, log_r_hertz
 
 HERE = Path(__file__).resolve().parent
 FIGURES = ("fig4", "fig5", "fig6", "fig7", "fig8")
@@ -54,7 +55,7 @@ _TUPLE_FIELDS = {"velocity", "gains", "dc_offset"}
 
 
 try:                                   # the package's parser, when present, checks every key and type
-    from tactile_jax import recipes as _recipes
+    from tactile_jax.io import recipes as _recipes
 except ImportError:                    # pragma: no cover - older package: this file's own checks
     _recipes = None
 
@@ -325,7 +326,7 @@ def fig4(out: Path, quick: bool) -> list[Row]:
 
 def fig5(out: Path, quick: bool) -> list[Row]:
     """P_x1, P_x2 and log|P_x2/P_x1| with the Eq. 15 line (the package's demo on the recipe's scene)."""
-    from tactile_jax.demo import run_demo
+    from tactile_jax.cli.demo import run_demo
 
     recipe = load_recipe(recipe_path("fig5"))
     sweep = recipe.get("sweep", {})

@@ -8,22 +8,27 @@ The library never switches on float64 itself: call
 ``jax.config.update("jax_enable_x64", True)`` first (the CLI does).
 """
 
-from .closed_form import SlopeFit as SlopeFit, dominant_wavenumber as dominant_wavenumber
-from .closed_form import radius_from_offset as radius_from_offset, slope_speed as slope_speed
+from .model.closed_form import SlopeFit as SlopeFit, dominant_wavenumber as dominant_wavenumber
+from .model.closed_form import radius_from_offset as radius_from_offset, slope_speed as slope_speed
 from .errors import TactileInputError as TactileInputError
-from .io import read_recording as read_recording, read_spectra as read_spectra
-from .io import write_recording as write_recording, write_spectra as write_spectra
-from .pair_fit import Leakage as Leakage, PairFit as PairFit, fit_pair as fit_pair, pair_leakage as pair_leakage
-from .probe import line_response as line_response, selectivity as selectivity
-from .r_curve import log_g as log_g, log_r_exact as log_r_exact, log_r_hertz as log_r_hertz
-from .r_curve import log_r_rough as log_r_rough
-from .recording import CHANNELS as CHANNELS, Recording as Recording, validate_recording as validate_recording
-from .sensor import PAPER_SENSOR as PAPER_SENSOR, Sensor as Sensor
-from .sensor import contact_depth as contact_depth, contact_radius as contact_radius
-from .scene import Scene as Scene, simulate as simulate
-from .spectra import amplitude_ratio as amplitude_ratio, estimate_spectra as estimate_spectra
-from .spectra import usable_band as usable_band, whitened_psd as whitened_psd
-from .texture import Grating as Grating, RandomTexture as RandomTexture, WireNet as WireNet
-from .texture import DirectionalTexture as DirectionalTexture, ModeTexture as ModeTexture
+from .io.files import read_recording as read_recording, read_spectra as read_spectra
+from .io.files import write_recording as write_recording, write_spectra as write_spectra
+from .inference.pair_fit import (
+    Leakage as Leakage,
+    PairFit as PairFit,
+    fit_pair as fit_pair,
+    pair_leakage as pair_leakage,
+)
+from .model.probe import line_response as line_response, selectivity as selectivity
+from .model.r_curve import log_g as log_g, log_r_exact as log_r_exact, log_r_hertz as log_r_hertz
+from .model.r_curve import log_r_rough as log_r_rough
+from .io.recording import CHANNELS as CHANNELS, Recording as Recording, validate_recording as validate_recording
+from .model.sensor import PAPER_SENSOR as PAPER_SENSOR, Sensor as Sensor
+from .model.sensor import contact_depth as contact_depth, contact_radius as contact_radius
+from .simulation.scene import Scene as Scene, simulate as simulate
+from .spectral.estimate import amplitude_ratio as amplitude_ratio, estimate_spectra as estimate_spectra
+from .spectral.estimate import usable_band as usable_band, whitened_psd as whitened_psd
+from .simulation.texture import Grating as Grating, RandomTexture as RandomTexture, WireNet as WireNet
+from .simulation.texture import DirectionalTexture as DirectionalTexture, ModeTexture as ModeTexture
 
 __version__ = "0.1.0"

@@ -15,12 +15,12 @@ import pytest
 from jax.experimental.compilation_cache import compilation_cache
 
 from conftest import compilations
-from tactile_jax.batch import run_batch
-from tactile_jax.fit import FitOptions
-from tactile_jax.io import write_recording
-from tactile_jax.recording import Recording
-from tactile_jax.results import read_results
-from tactile_jax.scene import Scene, simulate
+from tactile_jax.batch.run import run_batch
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.io.files import write_recording
+from tactile_jax.io.recording import Recording
+from tactile_jax.io.results import read_results
+from tactile_jax.simulation.scene import Scene, simulate
 
 DEPTHS = (0.265e-3, 0.925e-3)
 TRUTH = [(0.12, 0.0, 2e-3), (0.0, 0.10, 3e-3), (0.15, 0.0, 4e-3)]
@@ -175,7 +175,7 @@ def test_resume_with_other_options_refuses_naming_the_difference(local_run, data
 
     _, rows = local_run
     assert {r["options"] for r in rows} == {"defaults"}
-    from tactile_jax.results import write_results
+    from tactile_jax.io.results import write_results
 
     out = tmp_path / "results.csv"
     write_results(out, rows)

@@ -5,7 +5,7 @@ import pytest
 from click.testing import CliRunner
 
 from tactile_jax.cli import main
-from tactile_jax.io import read_recording, read_spectra
+from tactile_jax.io.files import read_recording, read_spectra
 
 
 @pytest.fixture(scope="module")
@@ -47,8 +47,8 @@ def test_simulate_then_spectra(runner, tmp_path):
 )
 def test_bad_input_is_one_line_and_exit_2(runner, tmp_path, args, needle):
     (tmp_path / "garbage.h5").write_bytes(b"not hdf5 at all")
-    from tactile_jax.io import write_recording
-    from tactile_jax.recording import Recording
+    from tactile_jax.io.files import write_recording
+    from tactile_jax.io.recording import Recording
 
     write_recording(tmp_path / "short.npz", Recording(np.zeros((4, 10)), 1000.0, (0.265e-3, 0.925e-3)))
     res = runner.invoke(main, [a.format(tmp=tmp_path) for a in args])

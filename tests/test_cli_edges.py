@@ -9,8 +9,8 @@ import pytest
 from click.testing import CliRunner
 
 from tactile_jax.cli import main
-from tactile_jax.io import write_recording
-from tactile_jax.scene import Scene, simulate
+from tactile_jax.io.files import write_recording
+from tactile_jax.simulation.scene import Scene, simulate
 
 
 @pytest.fixture(scope="module")
@@ -70,11 +70,13 @@ def test_writing_into_a_missing_folder_names_the_folder(runner, tmp_path):
 
 
 def test_truth_is_placed_against_the_bound_not_the_laplace_sigma():
-    from tactile_jax.fit import FitResult
-    from tactile_jax.report import fit_report
+    from tactile_jax.inference.result import FitResult
+    from tactile_jax.viz.report import fit_report
 
-    res = FitResult(vx=0.03, vx_err=3e-4, vy=3.5e-4, vy_err=1e-4, vy_upper=6e-4, a=2e-3, a_err=1e-5, converged=True,
-                    redchi=1.0, chi2=100.0, n_bins=40, n_residuals=120, n_params=12)
+    res = FitResult(converged=True, redchi=1.0, chi2=100.0, n_bins=40, n_residuals=120, n_params=12)
+    res.set("vx", value=0.03, err=3e-4)
+    res.set("vy", value=3.5e-4, err=1e-4, upper=6e-4)
+    res.set("a", value=2e-3, err=1e-5)
     line = next(ln for ln in fit_report(res, truth={"vx": 0.03, "vy": 0.0, "a": 2e-3}).splitlines()
                 if ln.strip().startswith("vy"))
     assert "sigma" not in line.split("consistent with 0")[1] and "truth 0, inside the bound" in line

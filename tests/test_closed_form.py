@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from tactile_jax.closed_form import dominant_wavenumber, radius_from_offset, slope_speed
-from tactile_jax.r_curve import log_r_rough
-from tactile_jax.sensor import PAPER_SENSOR
+from tactile_jax.model.closed_form import dominant_wavenumber, radius_from_offset, slope_speed
+from tactile_jax.model.r_curve import log_r_rough
+from tactile_jax.model.sensor import PAPER_SENSOR
 
 D1, D2 = PAPER_SENSOR.d1, PAPER_SENSOR.d2
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from tactile_jax import compare_r as cr
-from tactile_jax.pair_fit import fit_pair
+from tactile_jax.inference import compare_r as cr
+from tactile_jax.inference.pair_fit import fit_pair
 
 D1, D2 = 0.265e-3, 0.925e-3
 _plane = jax.jit(cr.rough_error_plane)
@@ -71,7 +71,7 @@ def test_synthetic_ratio_band_and_errors():
     assert 10 < d.mask.sum() < d.omega.size
     assert np.all(d.err[d.mask] <= 0.5)
     # the noise has the stated size: normalised residuals about the exact curve have unit spread
-    from tactile_jax.r_curve import log_r_exact
+    from tactile_jax.model.r_curve import log_r_exact
 
     z = (d.log_ratio - np.asarray(log_r_exact(d.omega / 0.047, D1, D2, 2.2e-3)))[d.mask] / d.err[d.mask]
     assert 0.6 < np.std(z) < 1.5
@@ -80,7 +80,7 @@ def test_synthetic_ratio_band_and_errors():
 @pytest.mark.slow
 def test_hertz_pair_residuals_see_the_hertz_truth():
     """The Hertz curve variant of the pair fit: unit-size residuals at the truth, large ones 10 % off."""
-    from tactile_jax.pair_fit import _residuals, _residuals_hertz
+    from tactile_jax.inference.pair_fit import exact_residuals, hertz_residuals
 
     d = cr.synthetic_ratio(0.047, 2.2e-3, truth="hertz", seed=0)
     args = (d.omega, d.log_ratio, d.err, d.mask, D1, D2, np.zeros(1), np.zeros(1))
@@ -88,9 +88,9 @@ def test_hertz_pair_residuals_see_the_hertz_truth():
     off = np.log([0.047, 2.42e-3, 1.0])
     n = d.mask.sum()
     chi2 = lambda fn, th: float(np.sum(np.square(fn(th, args)))) / n
-    assert 0.4 < chi2(_residuals_hertz, truth) < 2.0
-    assert chi2(_residuals_hertz, off) > 10 * chi2(_residuals_hertz, truth)
-    assert chi2(_residuals, truth) > 10 * chi2(_residuals_hertz, truth)     # the Gaussian curve misfits Hertz data
+    assert 0.4 < chi2(hertz_residuals, truth) < 2.0
+    assert chi2(hertz_residuals, off) > 10 * chi2(hertz_residuals, truth)
+    assert chi2(exact_residuals, truth) > 10 * chi2(hertz_residuals, truth)     # the Gaussian curve misfits Hertz data
     with pytest.raises(ValueError, match="unknown R curve"):
         fit_pair(d.omega, d.log_ratio, d.err, d.mask, D1, D2, curve="cubic")
 

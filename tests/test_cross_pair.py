@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from tactile_jax import cross_pair
-from tactile_jax.spectra import estimate_spectra
+from tactile_jax.model import cross_pair
+from tactile_jax.spectral.estimate import estimate_spectra
 
 
 def _channels(rng, n):

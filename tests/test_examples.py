@@ -63,7 +63,6 @@ def test_posterior_corner(tmp_path):
 
 @pytest.mark.slow
 def test_batch_folder(tmp_path):
-    pytest.importorskip("tactile_jax.batch", reason="tactile_jax.batch not available")
     _, rows = _main("batch_folder.py")(files=2, duration=6.0, folder=str(tmp_path / "data"),
                                              out=str(tmp_path / "results.csv"))
     assert len(rows) == 2 + 1 + 1                        # two files, a second record in the last, the broken one

@@ -11,13 +11,15 @@ import pytest
 
 from conftest import compilations
 from tactile_jax.errors import TactileInputError
-from tactile_jax.fit import FitOptions, fit_recording, fit_spectra, result_from_summary
-from tactile_jax.io import read_spectra, write_recording
-from tactile_jax.joint import run
-from tactile_jax.joint.core import Settings
-from tactile_jax.recording import Recording
-from tactile_jax.scene import Scene, simulate
-from tactile_jax.texture import Grating, RandomTexture
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording, fit_spectra
+from tactile_jax.inference.result import result_from_summary
+from tactile_jax.io.files import read_spectra, write_recording
+from tactile_jax.inference import run
+from tactile_jax.inference.core import Settings
+from tactile_jax.io.recording import Recording
+from tactile_jax.simulation.scene import Scene, simulate
+from tactile_jax.simulation.texture import Grating, RandomTexture
 
 
 def _scene(vx, vy, a, seed, snr=50.0, duration=16.0):

@@ -11,10 +11,10 @@ import pytest
 from click.testing import CliRunner
 
 from tactile_jax.cli import main
-from tactile_jax.fit import RESULT_FIELDS
-from tactile_jax.io import write_recording
-from tactile_jax.results import read_results, write_results
-from tactile_jax.scene import Scene, simulate
+from tactile_jax.inference.result import RESULT_FIELDS
+from tactile_jax.io.files import write_recording
+from tactile_jax.io.results import read_results, write_results
+from tactile_jax.simulation.scene import Scene, simulate
 
 VX = 0.023
 NO_CHAIN: list = []
@@ -81,7 +81,7 @@ def test_fit_plot_writes_png(mcmc_run):
 
 @pytest.mark.slow
 def test_fit_mcmc_adds_fields_and_posterior_file(mcmc_run):
-    from tactile_jax.posterior import load_posterior
+    from tactile_jax.uncertainty.posterior import load_posterior
 
     _, out, out_dir = mcmc_run
     (row,) = read_results(out)
@@ -134,8 +134,9 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
     assert "[[Variables]]" in res.stdout
     (row,) = read_results(out)
     assert row["file"] == str(spec) and row["index"] == 0 and row["status"] == "ok"
-    from tactile_jax.fit import FitOptions, fit_recording
-    from tactile_jax.io import read_recording
+    from tactile_jax.inference.options import FitOptions
+    from tactile_jax.inference.fit import fit_recording
+    from tactile_jax.io.files import read_recording
 
     direct = fit_recording(read_recording(scene_file), FitOptions(nperseg=1024))
     assert row["error_method"] == direct.error_method
@@ -150,13 +151,16 @@ def test_spectra_file_fits_like_its_recording(scene_file, tmp_path):
 
 
 def test_report_says_fixed_and_undetermined():
-    from tactile_jax.fit import FitResult
-    from tactile_jax.report import fit_report
+    from tactile_jax.inference.result import FitResult
+    from tactile_jax.viz.report import fit_report
 
-    r = FitResult(vx=0.02, vx_err=None, vy=1e-5, vy_err=2e-4, vy_upper=4e-4, a=None, a_lower=4.2e-3,
-                  gain_ratio=1.0, file="f.h5", index=3, n_bins=20, redchi=1.1, chi2=20.0, converged=True,
+    r = FitResult(file="f.h5", index=3, n_bins=20, redchi=1.1, chi2=20.0, converged=True,
                   message="vy is consistent with 0 (95 % upper bound 0.04 cm/s); the contact window is too weak",
                   correlations=np.array([[1.0, 0.8], [0.8, 1.0]]), names=("log_vy", "log_a"))
+    r.set("vx", value=0.02, fixed=True)
+    r.set("vy", value=1e-5, err=2e-4, upper=4e-4)
+    r.set("a", lower=4.2e-3)
+    r.set("gain_ratio", value=1.0, fixed=True)
     text = fit_report(r, truth={"vx": -0.02, "a": 5e-3})
     assert "f.h5  (record 3)" in text
     assert "vx (cm/s):" in text and "2 (fixed)" in text

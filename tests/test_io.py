@@ -9,9 +9,9 @@ import h5py
 import numpy as np
 import pytest
 
-from tactile_jax import io as tio
+from tactile_jax.io import files as tio
 from tactile_jax.errors import TactileInputError
-from tactile_jax.io import (
+from tactile_jax.io.files import (
     RECORDING_SUFFIXES,
     SpectraData,
     is_recording_file,
@@ -21,7 +21,7 @@ from tactile_jax.io import (
     write_recording,
     write_spectra,
 )
-from tactile_jax.recording import Recording
+from tactile_jax.io.recording import Recording
 
 DEPTHS = (0.265e-3, 0.925e-3)
 SUFFIXES = [".h5", ".hdf5", ".npz"]

@@ -5,16 +5,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.cross_pair import _solve_small
-from tactile_jax.joint import band as band_mod
-from tactile_jax.joint import lines
-from tactile_jax.joint.model import _to_half_bins
-from tactile_jax.joint.run import resolution_want
-from tactile_jax.joint.segments import KERNEL_OFFSETS, N_BINS, N_GROUPS, segments
-from tactile_jax.joint.solve import levenberg_marquardt
-from tactile_jax.r_curve import log_r_exact
-from tactile_jax.scene import Scene, simulate
-from tactile_jax.spectra import estimate_spectra
+from tactile_jax.model.cross_pair import _solve_small
+from tactile_jax.spectral import band as band_mod
+from tactile_jax.model import lines
+from tactile_jax.inference.forward import _to_half_bins
+from tactile_jax.inference.run import resolution_want
+from tactile_jax.spectral.segments import KERNEL_OFFSETS, N_BINS, N_GROUPS, segments
+from tactile_jax.inference.solve import levenberg_marquardt
+from tactile_jax.model.r_curve import log_r_exact
+from tactile_jax.simulation.scene import Scene, simulate
+from tactile_jax.spectral.estimate import estimate_spectra
 
 D1, D2 = 0.265e-3, 0.925e-3
 DEPTHS = jnp.array([D1, D2])

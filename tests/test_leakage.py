@@ -4,11 +4,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.pair_fit import (_residuals, centroid_shift, fit_pair, kernel_log_weights, noise_err,
-                                  pair_leakage)
-from tactile_jax.r_curve import log_r_exact
-from tactile_jax.sensor import PAPER_SENSOR
-from tactile_jax.spectra import amplitude_ratio, welch_spectra, whitened_psd
+from tactile_jax.inference.pair_fit import (
+    exact_residuals,
+    centroid_shift,
+    fit_pair,
+    kernel_log_weights,
+    noise_err,
+    pair_leakage,
+)
+from tactile_jax.model.r_curve import log_r_exact
+from tactile_jax.model.sensor import PAPER_SENSOR
+from tactile_jax.spectral.estimate import amplitude_ratio, welch_spectra, whitened_psd
 
 D1, D2 = PAPER_SENSOR.d1, PAPER_SENSOR.d2
 FS, NPERSEG = 1000.0, 1024
@@ -62,9 +68,9 @@ def test_centroid_term_explains_the_resolution_error_of_a_filter(filtered):
     base = (jnp.asarray(omega), jnp.asarray(y), jnp.ones_like(jnp.asarray(y)), jnp.asarray(mask), D1, D2,
             jnp.asarray(offsets), jnp.asarray(log_w))
     truth = jnp.log(jnp.array([SPEED, A, 1.0]))
-    average = np.asarray(_residuals(truth, base))[mask]
+    average = np.asarray(exact_residuals(truth, base))[mask]
     shift = centroid_shift(offsets, log_w, pair_leakage(spec, 0).centroid)
-    with_centroid = np.asarray(_residuals(truth, base + (jnp.asarray(shift),)))[mask]
+    with_centroid = np.asarray(exact_residuals(truth, base + (jnp.asarray(shift),)))[mask]
     rms = lambda x: float(np.sqrt(np.mean(x ** 2)))   # noqa: E731
     assert rms(average) > 1e-3                        # the window average alone misses the realised texture
     assert rms(with_centroid) < 0.5 * rms(average)
@@ -101,7 +107,7 @@ def test_leave_one_out_and_multitaper_spectra_carry_their_leakage_or_none():
     x = rng.standard_normal((4, 8 * 256))
     loo = welch_spectra(x, FS, nperseg=256, leave_one_out=True)
     assert loo.centroid.shape == (loo.n_segments, 2, 129)
-    from tactile_jax.spectra import multitaper_spectra
+    from tactile_jax.spectral.estimate import multitaper_spectra
     assert pair_leakage(multitaper_spectra(x, FS), 0) is None
 
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.lsq import DECREMENT_TOL, DOGLEG, least_squares
+from tactile_jax.inference.lsq import DECREMENT_TOL, DOGLEG, least_squares
 
 jax.config.update("jax_enable_x64", True)
 

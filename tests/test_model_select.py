@@ -4,9 +4,11 @@
 import numpy as np
 import pytest
 
-from tactile_jax import model_select as ms
+from tactile_jax.inference import select as ms
 from tactile_jax.errors import TactileInputError
-from tactile_jax.fit import FitOptions, FitResult, fit_recording
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.result import FitResult
+from tactile_jax.inference.fit import fit_recording
 
 
 def test_information_criterion_corrects_for_correlated_bins_and_misfit():
@@ -46,10 +48,13 @@ def test_forced_models_set_the_flags_and_unknown_ones_are_errors():
 
 
 def test_annotate_says_when_an_error_bar_exceeds_its_value():
-    res = FitResult(vx=0.02, vx_err=0.001, gain_ratio=1.0, gain_ratio_err=2.0, message="")
+    res = FitResult(message="")
+    res.set("vx", value=0.02, err=0.001)
+    res.set("gain_ratio", value=1.0, err=2.0)
     ms.annotate(res)
     assert "gain_ratio is not determined" in res.message and "vx" not in res.message
-    res = FitResult(vy=1e-4, vy_err=3e-4, message="vy is consistent with 0 (95 % upper bound 0.06 cm/s)")
+    res = FitResult(message="vy is consistent with 0 (95 % upper bound 0.06 cm/s)")
+    res.set("vy", value=1e-4, err=3e-4)
     ms.annotate(res)
     assert res.message.count("vy") == 1          # already said: not repeated
 
@@ -57,7 +62,7 @@ def test_annotate_says_when_an_error_bar_exceeds_its_value():
 @pytest.fixture(scope="module")
 def small_contact():
     """A 1.5 mm contact at 4.7 cm/s (4 s): the window matters and is measured."""
-    from tactile_jax.scene import Scene, simulate
+    from tactile_jax.simulation.scene import Scene, simulate
 
     return simulate(Scene(velocity=(0.047, 0.0), contact_radius=1.5e-3, duration=4.0, seed=2))
 
@@ -81,7 +86,7 @@ def test_auto_keeps_the_window_of_a_small_contact_and_reports_the_margin(small_c
 @pytest.mark.slow
 def test_hertz_model_fits_the_slip_axis_pair_only():
     """``model="hertz"`` on a Hertz-window recording: the x pair's Hertz curve; vy is not claimed."""
-    from tactile_jax.scene import Scene, simulate
+    from tactile_jax.simulation.scene import Scene, simulate
 
     rec = simulate(Scene(velocity=(0.047, 0.0), contact_radius=2.2e-3, window="hertz", duration=4.0, seed=0))
     res = fit_recording(rec, FitOptions(model="hertz"))

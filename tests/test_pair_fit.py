@@ -4,16 +4,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.pair_fit import _residuals, fit_pair, kernel_log_weights
-from tactile_jax.r_curve import log_r_exact
-from tactile_jax.sensor import PAPER_SENSOR
-from tactile_jax.spectra import _spectral_kernel
+from tactile_jax.inference.pair_fit import exact_residuals, fit_pair, kernel_log_weights
+from tactile_jax.model.r_curve import log_r_exact
+from tactile_jax.model.sensor import PAPER_SENSOR
+from tactile_jax.spectral.estimate import spectral_kernel
 
 D1, D2 = PAPER_SENSOR.d1, PAPER_SENSOR.d2
 NPERSEG = 2048
 D_OMEGA = 2 * np.pi * 1000.0 / NPERSEG
 OMEGA = D_OMEGA * np.arange(129)                            # the lowest 129 bins of a 2048-point Welch at 1 kHz
-KERNEL = _spectral_kernel(np.hanning(NPERSEG)[None, :], NPERSEG, 3.0)          # Hann: offsets in half bins
+KERNEL = spectral_kernel(np.hanning(NPERSEG)[None, :], NPERSEG, 3.0)          # Hann: offsets in half bins
 SPEED, A = 0.015, 4e-3                                      # the slow, large-contact cell of speed_vs_error
 
 
@@ -64,16 +64,16 @@ def test_the_joint_pipelines_pair_starts_are_pair_fits_model(exact_ratio):
     """The joint pipeline starts from each pair fitted alone with ``pair_fit``'s residuals, given the flat
     spectral window on the fixed kernel grid (zero weights as -2e4 in log): the same residuals as with the
     window's own support."""
-    from tactile_jax.joint.segments import KERNEL_OFFSETS
+    from tactile_jax.spectral.segments import KERNEL_OFFSETS
 
     y, err, mask = exact_ratio
     theta = jnp.log(jnp.asarray([0.017, 3.5e-3, 1.1]))
     off, lw = kernel_log_weights(OMEGA, KERNEL)
-    ref = np.asarray(_residuals(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
+    ref = np.asarray(exact_residuals(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
                                         D1, D2, jnp.asarray(off), jnp.asarray(lw))))
     w = np.full(KERNEL_OFFSETS.size, -2e4)
     for o, v in zip(off, lw):
         w[int(round((o - KERNEL_OFFSETS[0]) * 2))] = v
-    got = np.asarray(_residuals(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
+    got = np.asarray(exact_residuals(theta, (jnp.asarray(OMEGA), jnp.asarray(y), jnp.asarray(err), jnp.asarray(mask),
                                         D1, D2, jnp.asarray(KERNEL_OFFSETS), jnp.asarray(w))))
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)

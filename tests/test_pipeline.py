@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tactile_jax.closed_form import slope_speed
-from tactile_jax.demo import DEFAULT_PREWHITEN, paper_fig5_scene
-from tactile_jax.pair_fit import fit_pair
-from tactile_jax.r_curve import log_r_exact
-from tactile_jax.scene import simulate
-from tactile_jax.spectra import amplitude_ratio, estimate_spectra, usable_band
+from tactile_jax.model.closed_form import slope_speed
+from tactile_jax.cli.demo import DEFAULT_PREWHITEN, paper_fig5_scene
+from tactile_jax.inference.pair_fit import fit_pair
+from tactile_jax.model.r_curve import log_r_exact
+from tactile_jax.simulation.scene import simulate
+from tactile_jax.spectral.estimate import amplitude_ratio, estimate_spectra, usable_band
 
 
 def _x_pair(scene):

@@ -12,10 +12,16 @@ import numpy as np
 import pytest
 
 from tactile_jax._optional import MissingExtra
-from tactile_jax.lsq import least_squares
-from tactile_jax.posterior import (load_posterior, make_log_prob, read_attrs, run_emcee, save_posterior,
-                                   to_inference_data)
-from tactile_jax.problem import FitProblem
+from tactile_jax.inference.lsq import least_squares
+from tactile_jax.uncertainty.posterior import (
+    load_posterior,
+    make_log_prob,
+    read_attrs,
+    run_emcee,
+    save_posterior,
+    to_inference_data,
+)
+from tactile_jax.inference.problem import FitProblem
 
 SIGMA = 0.3
 NAMES = ("m", "c", "q")
@@ -222,7 +228,7 @@ def test_to_inference_data_and_save_without_arviz(short, no_module, tmp_path):
 
 
 def test_corner_plot_with_arviz(tmp_path, short):
-    from tactile_jax.plotting import plot_posterior_corner
+    from tactile_jax.viz.figures import plot_posterior_corner
 
     post = short._replace(names=("vx", "a"), samples={"vx": short.samples["m"] / 100, "a": short.samples["c"] / 1e3})
     fit = SimpleNamespace(posterior=post, file="toy.h5", index=0)
@@ -235,13 +241,13 @@ def test_corner_plot_with_arviz(tmp_path, short):
 def test_figures_without_matplotlib(no_module, monkeypatch, tmp_path):
     """plotting imports without matplotlib; drawing names the plot extra, and so do compare_r's figures."""
     no_module("matplotlib")
-    monkeypatch.delitem(sys.modules, "tactile_jax.plotting", raising=False)
+    monkeypatch.delitem(sys.modules, "tactile_jax.viz.figures", raising=False)
     import importlib
 
-    plotting = importlib.import_module("tactile_jax.plotting")
+    plotting = importlib.import_module("tactile_jax.viz.figures")
     with pytest.raises(MissingExtra, match=r'plotting needs matplotlib: pip install "tactile_jax\[plot\]"'):
         plotting.pyplot()
-    from tactile_jax.compare_r import write_figures
+    from tactile_jax.inference.compare_r import write_figures
 
     with pytest.raises(MissingExtra, match=r"tactile_jax\[plot\]"):
         write_figures(tmp_path)
@@ -250,7 +256,7 @@ def test_figures_without_matplotlib(no_module, monkeypatch, tmp_path):
 @pytest.mark.slow
 def test_demo_without_matplotlib_writes_a_note(no_module, monkeypatch, tmp_path):
     """The demo without matplotlib: no figure, a note naming the plot extra (spectra compile: seconds)."""
-    from tactile_jax import demo
+    from tactile_jax.cli import demo
 
     monkeypatch.setattr(demo, "fit_recording", lambda rec, options: SimpleNamespace(vx=0.023, a=3e-3))
     no_module("matplotlib")
@@ -283,7 +289,7 @@ def _fit_of(problem):
 
 @pytest.mark.parametrize("quiet", [False, True])
 def test_attach_mcmc_shows_progress_and_the_posterior_file(problem, tmp_path, capsys, quiet):
-    from tactile_jax import cli
+    from tactile_jax.cli import fit as cli
 
     fit, row = _fit_of(problem), {}
     cli._POSTERIOR_FILES.clear()
@@ -300,7 +306,7 @@ def test_attach_mcmc_shows_progress_and_the_posterior_file(problem, tmp_path, ca
 
 
 def test_diagnose_messages():
-    from tactile_jax.posterior import _diagnose
+    from tactile_jax.uncertainty.posterior import _diagnose
 
     lp = np.zeros((8, 50))
     lp[2] = -100.0                                     # a walker stranded far below the others

@@ -7,11 +7,11 @@ import pytest
 import scipy.special
 from scipy.integrate import quad
 
-from tactile_jax import r_curve
-from tactile_jax.probe import line_response, selectivity
-from tactile_jax.r_curve import log_g, log_g_quadrature, log_r_exact, log_r_hertz, log_r_rough
-from tactile_jax.sensor import PAPER_SENSOR
-from tactile_jax.window import hertz_line_response, hertz_projection
+from tactile_jax.model import r_curve
+from tactile_jax.model.probe import line_response, selectivity
+from tactile_jax.model.r_curve import log_g, log_g_quadrature, log_r_exact, log_r_hertz, log_r_rough
+from tactile_jax.model.sensor import PAPER_SENSOR
+from tactile_jax.model.window import hertz_line_response, hertz_projection
 
 D1, D2 = PAPER_SENSOR.d1, PAPER_SENSOR.d2
 

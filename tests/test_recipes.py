@@ -5,16 +5,12 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from tactile_jax import cli
+from tactile_jax.cli import fit as cli
+from tactile_jax.cli import main
 from tactile_jax.errors import TactileInputError
-from tactile_jax.fit import FitOptions
-from tactile_jax.model_select import MODELS
-from tactile_jax.recipes import (
-    list_recipes,
-    load_recipe,
-    recipe_options,
-    scene_from_recipe,
-)
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.select import MODELS
+from tactile_jax.io.recipes import list_recipes, load_recipe, recipe_options, scene_from_recipe
 
 FITS = Path(__file__).resolve().parents[1] / "fits"
 
@@ -82,23 +78,23 @@ def captured(monkeypatch):
 
 def test_fit_scene_recipe_first_explicit_flags_override(tmp_path, captured):
     out = str(tmp_path / "r.json")
-    res = CliRunner().invoke(cli.main, ["fit", "x.h5", "--out", out, "--scene", str(FITS / "noisy.toml")])
+    res = CliRunner().invoke(main, ["fit", "x.h5", "--out", out, "--scene", str(FITS / "noisy.toml")])
     assert res.exit_code == 0, res.output
     assert (captured[-1].model, captured[-1].min_snr, captured[-1].method) == ("window+noise", 2.0, "welch")
-    res = CliRunner().invoke(cli.main, ["fit", "x.h5", "--out", out, "--scene", str(FITS / "noisy.toml"),
+    res = CliRunner().invoke(main, ["fit", "x.h5", "--out", out, "--scene", str(FITS / "noisy.toml"),
                                         "--method", "multitaper", "--model", "auto"])
     assert res.exit_code == 0, res.output
     assert (captured[-1].model, captured[-1].min_snr, captured[-1].method) == ("auto", 2.0, "multitaper")
     # a default-valued flag that was not typed does not override the recipe
-    res = CliRunner().invoke(cli.main, ["fit", "x.h5", "--out", out, "--scene", str(FITS / "uncalibrated_gains.toml")])
+    res = CliRunner().invoke(main, ["fit", "x.h5", "--out", out, "--scene", str(FITS / "uncalibrated_gains.toml")])
     assert captured[-1].method == "multitaper" and captured[-1].model == "window+gain"
 
 
 def test_fit_bad_scene_or_model_exits_2_with_one_line(tmp_path, captured):
     bad = tmp_path / "bad.toml"
     bad.write_text("[fit]\nwindw = 'hertz'\n")
-    res = CliRunner().invoke(cli.main, ["fit", "x.h5", "--out", str(tmp_path / "r.json"), "--scene", str(bad)])
+    res = CliRunner().invoke(main, ["fit", "x.h5", "--out", str(tmp_path / "r.json"), "--scene", str(bad)])
     assert res.exit_code == 2
     assert "bad.toml" in res.output and "windw" in res.output
-    res = CliRunner().invoke(cli.main, ["fit", "x.h5", "--out", str(tmp_path / "r.json"), "--model", "nope"])
+    res = CliRunner().invoke(main, ["fit", "x.h5", "--out", str(tmp_path / "r.json"), "--model", "nope"])
     assert res.exit_code == 2 and "nope" in res.output and not captured

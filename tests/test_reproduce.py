@@ -9,7 +9,7 @@ import pytest
 
 import tactile_jax as tj
 from tactile_jax.errors import TactileInputError
-from tactile_jax.fit import FitOptions
+from tactile_jax.inference.options import FitOptions
 
 FITS = Path(__file__).resolve().parent.parent / "fits"
 
@@ -81,7 +81,7 @@ def test_quick_fig4_writes_figure_and_table(rp, tmp_path):
 
 def test_fig5_recipe_is_the_demo_scene(rp):
     """Fig. 5 runs ``demo.run_demo``, whose scene is fixed: the recipe must describe that same scene."""
-    from tactile_jax.demo import paper_fig5_scene
+    from tactile_jax.cli.demo import paper_fig5_scene
 
     scene = rp.make_scene(rp.load_recipe(FITS / "paper_fig5.toml"))
     assert scene == paper_fig5_scene(seed=scene.seed, duration=scene.duration)

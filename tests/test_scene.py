@@ -19,14 +19,14 @@ import pytest
 import scipy.integrate
 import scipy.signal
 
-import tactile_jax.scene as sim
-from tactile_jax.decay import poisson_kernel
+import tactile_jax.simulation.scene as sim
+from tactile_jax.model.decay import poisson_kernel
 from tactile_jax.errors import TactileInputError
-from tactile_jax.recording import Recording, validate_recording
-from tactile_jax.sensor import PAPER_SENSOR
-from tactile_jax.scene import Scene, probe_signals, simulate
-from tactile_jax.texture import Grating, RandomTexture, WireNet, texture_field
-from tactile_jax.window import gaussian_window, hertz_line_response, hertz_window
+from tactile_jax.io.recording import Recording, validate_recording
+from tactile_jax.model.sensor import PAPER_SENSOR
+from tactile_jax.simulation.scene import Scene, probe_signals, simulate
+from tactile_jax.simulation.texture import Grating, RandomTexture, WireNet, texture_field
+from tactile_jax.model.window import gaussian_window, hertz_line_response, hertz_window
 
 D1, D2 = PAPER_SENSOR.d1, PAPER_SENSOR.d2
 EPS = D2 - D1

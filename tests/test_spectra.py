@@ -8,7 +8,7 @@ import scipy.signal as ss
 from scipy.signal.windows import dpss
 
 from tactile_jax.errors import TactileInputError
-from tactile_jax.spectra import (
+from tactile_jax.spectral.estimate import (
     neighbour_log_ratio_err,
     AmplitudeRatio,
     CrossSpectra,
@@ -288,7 +288,7 @@ def test_too_short_and_bad_settings_raise():
 
 @pytest.mark.slow
 def test_burg_recovers_ar2_and_prewhitening_keeps_ratio():
-    from tactile_jax.prewhiten import burg_ar
+    from tactile_jax.spectral.prewhiten import burg_ar
 
     rng = np.random.default_rng(11)
     n = 20000

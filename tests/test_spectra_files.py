@@ -7,12 +7,13 @@ from click.testing import CliRunner
 
 from tactile_jax.cli import main
 from tactile_jax.errors import TactileInputError
-from tactile_jax.fit import NO_XY_MESSAGE, FitOptions, fit_recording, fit_spectra
-from tactile_jax.io import SpectraData, read_recording, read_spectra, write_recording, write_spectra
-from tactile_jax.joint import core
-from tactile_jax.joint.segments import N_GROUPS, Segments, from_spectra, min_nperseg, segments, to_spectra
-from tactile_jax.recording import Recording
-from tactile_jax.scene import Scene, simulate
+from tactile_jax.inference.fit import NO_XY_MESSAGE, fit_recording, fit_spectra
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.io.files import SpectraData, read_recording, read_spectra, write_recording, write_spectra
+from tactile_jax.inference import core
+from tactile_jax.spectral.segments import N_GROUPS, Segments, from_spectra, min_nperseg, segments, to_spectra
+from tactile_jax.io.recording import Recording
+from tactile_jax.simulation.scene import Scene, simulate
 
 #: what a fit reports, compared between a recording and its spectra file
 COMPARED = ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi", "error_scale")

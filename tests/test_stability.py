@@ -18,15 +18,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tactile_jax.fit import FitOptions, fit_recording, fit_spectra
-from tactile_jax.io import SpectraData
-from tactile_jax.pair_fit import _residuals as pair_residuals
-from tactile_jax.pair_fit import fit_pair, pair_leakage
-from tactile_jax.r_curve import log_g, log_r_exact
-from tactile_jax.recording import Recording
-from tactile_jax.scene import Scene, simulate
-from tactile_jax.spectra import amplitude_ratio, estimate_spectra, usable_band, whitened_psd
-from tactile_jax.texture import Grating, RandomTexture, WireNet
+from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.fit import fit_recording, fit_spectra
+from tactile_jax.io.files import SpectraData
+from tactile_jax.inference.pair_fit import exact_residuals as pair_residuals
+from tactile_jax.inference.pair_fit import fit_pair, pair_leakage
+from tactile_jax.model.r_curve import log_g, log_r_exact
+from tactile_jax.io.recording import Recording
+from tactile_jax.simulation.scene import Scene, simulate
+from tactile_jax.spectral.estimate import amplitude_ratio, estimate_spectra, usable_band, whitened_psd
+from tactile_jax.simulation.texture import Grating, RandomTexture, WireNet
 
 #: the cases that simulate and fit a scene each: ``pytest -m slow``; the default run keeps the cheap ones
 slow = pytest.mark.slow
@@ -197,8 +198,8 @@ def test_a_narrow_low_snr_band_gets_finer_bins():
 
 _FLOAT32_FIT = """
 import dataclasses, json, numpy as np
-from tactile_jax.fit import FitOptions, fit_recording
-from tactile_jax.scene import RandomTexture, Scene, simulate
+from tactile_jax.inference.fit import FitOptions, fit_recording
+from tactile_jax.simulation.scene import RandomTexture, Scene, simulate
 scene = Scene(texture=RandomTexture(), velocity=(0.015, 0.0), contact_radius=1.5e-3, snr_db=10.0, duration=8.0, seed=415)
 rec = simulate(scene)
 res = fit_recording(dataclasses.replace(rec, signals=np.asarray(rec.signals, np.float32)), FitOptions())

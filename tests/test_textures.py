@@ -8,9 +8,9 @@ import pytest
 
 import tactile_jax as tj
 from tactile_jax.errors import TactileInputError
-from tactile_jax.recipes import load_recipe, scene_from_recipe
-from tactile_jax.scene import Scene, simulate
-from tactile_jax.texture import (
+from tactile_jax.io.recipes import load_recipe, scene_from_recipe
+from tactile_jax.simulation.scene import Scene, simulate
+from tactile_jax.simulation.texture import (
     DirectionalTexture,
     ModeTexture,
     RandomTexture,

@@ -1,0 +1,1 @@
+"""Reprocessing a dataset: every record of every file through the fit's compiled program, resumably."""

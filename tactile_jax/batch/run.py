@@ -1,0 +1,495 @@
+"""Batch reprocessing of datasets: walk, chunk, fit, resume, write atomically, optionally on Dask.
+
+``run_batch(inputs, out)`` fits every record of every recording under
+``inputs`` (files, folders searched recursively, multi-record files with
+``signals`` of shape (n, 4, N)) and writes one data-contract row per record
+to ``out`` (.json, .csv or .parquet). Records are fitted in chunks of
+``chunk_size`` by the joint pipeline that ``fit`` runs on one record
+(``joint.core``, vmapped; the last chunk is padded with copies that are
+dropped). Its inputs have one shape whatever the record's length, segment
+length or band, so a batch compiles it once per chunk size, not per file.
+
+Nothing is lost: a bad record (NaN samples, wrong shape, missing fs/depths,
+an unreadable file) becomes a row with its ``status`` (the
+``TactileInputError`` code) and ``message``; the others go on. The results
+file is rewritten atomically (``results.write_results``: temporary file then
+``os.replace``) after every chunk, so an interruption loses at most the
+chunks in flight, and a rerun with the same ``out`` skips the rows already
+there (``resume``). Rows whose status is transient (``worker_error``) are redone.
+
+With ``workers=N`` (a ``dask.distributed.LocalCluster`` of N spawned
+processes; JAX does not survive ``fork``) or ``scheduler=ADDRESS`` the chunks
+run as Dask tasks, partitioned by file and chunk exactly as locally, so the
+rows are the same.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import TactileInputError
+from ..inference.options import FitOptions
+from ..inference.result import RESULT_FIELDS
+
+__all__ = ["BatchSummary", "run_batch", "scan_inputs", "TRANSIENT_STATUSES", "DEFAULT_MODEL"]
+
+#: statuses of rows that a resumed batch computes again (failures of the machinery, not of the data)
+TRANSIENT_STATUSES = ("worker_error",)
+#: statuses of a fit that ran and produced values (the others count as failed)
+FIT_RAN = ("ok", "not_converged", "poor_fit")
+#: the model a batch fits: the joint pipeline of ``fit`` (each row names the scene model it fitted)
+DEFAULT_MODEL = "joint"
+
+
+@dataclasses.dataclass
+class BatchSummary:
+    """What a batch did. ``timings`` in seconds: scan, read, spectra, fit, write, total."""
+
+    n_rows: int
+    n_failed: int
+    n_skipped: int
+    out: Path
+    timings: dict
+    n_fitted: int = 0
+    model: str = DEFAULT_MODEL
+
+
+@dataclasses.dataclass
+class _FileInfo:
+    """A recording file's metadata (signals not read) or the error that makes it unusable."""
+
+    path: str
+    kind: str = ""
+    n_records: int = 0
+    n_samples: int = 0
+    multi: bool = False
+    fs: float = float("nan")
+    depths: tuple = (float("nan"), float("nan"))
+    curvature_radius: float | None = None
+    velocity: tuple | None = None
+    gain_ratio: object = None
+    error: TactileInputError | None = None
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def _walk(inputs, out: Path | None = None) -> tuple[list[str], dict[str, str]]:
+    """Every file to give a row, in order, and why a folder entry is not a recording (file -> reason).
+
+    Explicit files are always taken. In a folder every file is taken except hidden ones (names
+    starting with ".", such as the results' own temporary files) and ``out`` itself; a folder that
+    holds no recording at all is an error.
+    """
+    from ..io.files import RECORDING_SUFFIXES, is_recording_file
+
+    files, not_recordings = [], {}
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    skip = None if out is None else os.path.realpath(out)
+    for item in inputs:
+        p = Path(os.fspath(item))
+        if not p.is_dir():
+            files.append(os.fspath(item))
+            continue
+        found = 0
+        for root, dirs, names in os.walk(p):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            for name in sorted(names):
+                q = os.path.join(root, name)
+                if name.startswith(".") or os.path.realpath(q) == skip:
+                    continue
+                files.append(q)
+                if is_recording_file(q):
+                    found += 1
+                else:
+                    suffix = Path(name).suffix.lower()
+                    not_recordings[q] = (f"not a recording: no 'signals' in this {suffix} file, or unreadable"
+                                         if suffix in RECORDING_SUFFIXES else
+                                         f"not a recording file type ({suffix or 'no suffix'}; "
+                                         f"recordings are {', '.join(RECORDING_SUFFIXES)})")
+        if not found:
+            raise TactileInputError(f"no recording files ({', '.join(RECORDING_SUFFIXES)} with 'signals') in "
+                                    "this folder or below", source=str(p), code="bad_setting")
+    seen, unique = set(), []
+    for f in files:
+        if f not in seen:
+            seen.add(f)
+            unique.append(f)
+    return unique, not_recordings
+
+
+def _scan(path: str) -> _FileInfo:
+    """Read a recording file's metadata and the shape of ``signals`` without reading the samples."""
+    from ..io import files as tio
+    from ..io.recording import Recording, validate_recording
+
+    info = _FileInfo(path)
+    try:
+        shape, dtype, meta = tio.read_recording_header(path)
+        info.kind = tio.file_kind(Path(path), path)
+        if np.dtype(dtype).kind not in "fiu":
+            raise TactileInputError("signals must be a real numeric array", source=path, code="bad_shape")
+        if len(shape) not in (2, 3) or shape[-2] != 4:
+            raise TactileInputError(
+                f"signals must have shape (4, N) or (n, 4, N) with channels x1, x2, y1, y2; got {tuple(shape)}",
+                source=path, code="bad_shape")
+        if shape[-1] < 2 or (len(shape) == 3 and shape[0] == 0):
+            raise TactileInputError(f"signals hold no samples (shape {tuple(shape)})", source=path, code="too_short")
+        # fs and depths by the contract's own checks, on a placeholder signal
+        validate_recording(Recording(np.zeros((4, 2)), meta["fs"], meta["depths"], source=path))
+        info.multi = len(shape) == 3
+        info.n_records = shape[0] if info.multi else 1
+        info.n_samples = int(shape[-1])
+        info.fs, info.depths = float(meta["fs"]), tuple(float(d) for d in meta["depths"])
+        info.curvature_radius, info.velocity, info.gain_ratio = (meta["curvature_radius"], meta["velocity"],
+                                                                 meta["gain_ratio"])
+    except TactileInputError as err:
+        info.error = err.with_source(path)
+    except Exception as exc:  # noqa: BLE001 - a file the readers did not foresee
+        info.error = TactileInputError(f"cannot read file: {type(exc).__name__}: {exc}", source=path, code="unreadable")
+    return info
+
+
+def scan_inputs(inputs, out: Path | None = None) -> list[_FileInfo]:
+    """Walk ``inputs`` (see ``_walk``) and scan every file; a file that is not a recording carries its error."""
+    files, not_recordings = _walk(inputs, out)
+    infos = []
+    for f in files:
+        if f in not_recordings:
+            infos.append(_FileInfo(f, error=TactileInputError(not_recordings[f], source=f, code="not_recording")))
+        else:
+            infos.append(_scan(f))
+    return infos
+
+
+# --------------------------------------------------------------------------- reading records
+
+
+_NPZ_CACHE: dict = {}
+
+
+def _read_records(info: _FileInfo, start: int, stop: int) -> np.ndarray:
+    """Records ``start:stop`` of a file as (n, 4, N); HDF5 is sliced lazily, NPZ loaded once per process."""
+    if info.kind == "hdf5":
+        import h5py
+
+        with h5py.File(info.path, "r") as f:
+            ds = f["signals"] if "signals" in f else None
+            if ds is None:
+                sig = np.asarray(f.attrs["signals"])
+                return sig[None] if sig.ndim == 2 else sig[start:stop]
+            return ds[start:stop] if info.multi else ds[()][None]
+    key = (info.path, os.path.getmtime(info.path))
+    if key not in _NPZ_CACHE:
+        _NPZ_CACHE.clear()                              # one file at a time: memory stays bounded
+        with np.load(info.path, allow_pickle=False) as z:
+            _NPZ_CACHE[key] = z["signals"]
+    sig = _NPZ_CACHE[key]
+    return sig[None] if not info.multi else sig[start:stop]
+
+
+def _error_row(src: str, index: int, code: str, message: str, model: str, tag: str) -> dict:
+    row = dict.fromkeys(RESULT_FIELDS)
+    row.update(file=src, index=int(index), converged=False, status=code, message=message, model=model, options=tag)
+    return row
+
+
+def options_tag(options: FitOptions) -> str:
+    """The options a row was fitted with, as ``name=value; ...`` (those that differ from the defaults)."""
+    default = FitOptions()
+    parts = [f"{f.name}={getattr(options, f.name)!r}" for f in dataclasses.fields(FitOptions)
+             if getattr(options, f.name) != getattr(default, f.name)]
+    return "; ".join(parts) or "defaults"
+
+
+def _tag_items(tag) -> dict:
+    if tag in (None, "") or (isinstance(tag, float) and math.isnan(tag)):
+        return {"options": "not recorded"}
+    return dict(part.split("=", 1) for part in str(tag).split("; ") if "=" in part)
+
+
+def _check_options(out: Path, kept: list[dict], tag: str) -> None:
+    """Refuse to resume rows fitted with other options, naming the first difference."""
+    new = _tag_items(tag)
+    for row in kept:
+        old = _tag_items(row.get("options"))
+        if old != new:
+            name = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))[0]
+
+            def value(items):
+                return items.get(name, repr(getattr(FitOptions(), name, None)))
+
+            raise TactileInputError(
+                f"holds rows fitted with {name}={value(old)}, this run has {name}={value(new)}: rerun with --no-resume to refit every row, or write to "
+                "another --out", source=str(out), code="bad_setting")
+
+
+# --------------------------------------------------------------------------- chunks
+
+
+def _plan(infos: list[_FileInfo], done: set, chunk_size: int):
+    """Chunks of (file index, start, stop) segments in file order; every chunk has one size (one program)."""
+    items = []
+    total = 0
+    for fi, info in enumerate(infos):
+        if info.error is not None:
+            continue
+        total += info.n_records
+        items.extend((fi, i) for i in range(info.n_records) if (info.path, i) not in done)
+    # a tiny dataset gets a small program; the size depends on the dataset, not on what is left to do
+    size = min(chunk_size, 1 << max(total - 1, 0).bit_length())
+    chunks = []
+    for c in range(0, len(items), size):
+        segments = []
+        for fi, i in items[c:c + size]:
+            if segments and segments[-1][0] == fi and segments[-1][2] == i:
+                segments[-1][2] = i + 1
+            else:
+                segments.append([fi, i, i + 1])
+        chunks.append((size, [tuple(s) for s in segments]))
+    return chunks
+
+
+def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOptions, model: str,
+               x64: bool = True, cache_dir: str | None = None) -> tuple[list[dict], dict]:
+    """Read, check and fit one chunk; return its rows (in segment order) and stage timings. Never raises."""
+    import jax
+
+    if x64 and not jax.config.jax_enable_x64:
+        jax.config.update("jax_enable_x64", True)
+    if cache_dir and not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", cache_dir)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    from ..inference.options import options_from_file, settings_of
+    from ..inference.fit import record_of, settle
+    from ..inference.result import result_from_summary
+    from ..inference import run
+    from ..inference.select import model_name
+    from ..io.recording import Recording, validate_recording
+
+    t0 = time.perf_counter()
+    tag = options_tag(options)
+    rows: dict[int, dict] = {}
+    good, recs, metas = [], [], []
+    pos = 0
+    settings = settings_of(options)
+    timings = {"read": 0.0, "spectra": 0.0, "fit": 0.0}
+    for info, (_, start, stop) in zip(infos_part, segments):
+        try:
+            block = _read_records(info, start, stop)
+        except Exception as exc:  # noqa: BLE001 - a file that changed or broke since the scan
+            for k, i in enumerate(range(start, stop)):
+                rows[pos + k] = _error_row(info.path, i, "unreadable",
+                                           f"{info.path}: cannot read record {i}: {type(exc).__name__}: {exc}", model, tag)
+            pos += stop - start
+            continue
+        t1 = time.perf_counter()
+        timings["read"] += t1 - t0
+        file_options = options_from_file(options, info)          # the file's known velocity and gains
+        vel = file_options.velocity
+        for k, i in enumerate(range(start, stop)):
+            src = f"{info.path} [record {i}]" if info.multi else info.path
+            try:
+                validate_recording(Recording(block[k], info.fs, info.depths, source=src))
+                recs.append(record_of(block[k], info.fs, info.depths, file_options, source=src))
+            except TactileInputError as err:
+                err = err.with_source(src)
+                rows[pos + k] = _error_row(info.path, i, err.code, str(err), model, tag)
+                continue
+            good.append((pos + k, info.path, i))
+            metas.append((vel, info.curvature_radius))
+        pos += stop - start
+        t0 = time.perf_counter()
+        timings["spectra"] += t0 - t1
+    if good:
+        t1 = time.perf_counter()
+        try:
+            summaries = [settle(r, settings, s)[0] for r, s in zip(recs, run.fit_many(recs, settings, size))]
+            for (p, src, i), r, s, (vel, radius) in zip(good, recs, summaries, metas):
+                res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
+                                          model=model_name(s.free, vel is not None), segments=r.seg)
+                res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
+                rows[p] = {**res.to_record(), "options": tag}
+        except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume
+            text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+            for p, src, i in good:
+                rows[p] = _error_row(src, i, "worker_error", f"{src}: the chunk failed: {text}", model, tag)
+        timings["fit"] += time.perf_counter() - t1
+    return [rows[k] for k in sorted(rows)], timings
+
+
+# --------------------------------------------------------------------------- resume and output
+
+
+def _existing_rows(out: Path) -> list[dict]:
+    if not out.exists():
+        return []
+    if out.suffix.lower() == ".parquet":
+        try:
+            import pyarrow.parquet as pq
+        except ImportError:
+            raise TactileInputError("resuming a .parquet batch needs pyarrow", source=str(out),
+                                    code="bad_setting") from None
+        return pq.read_table(out).to_pylist()
+    from ..io.results import read_results
+
+    return read_results(out)
+
+
+def _key(row: dict):
+    try:
+        return str(row.get("file")), int(row.get("index") or 0)
+    except (TypeError, ValueError):
+        return None
+
+
+def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 32, workers: int | None = None,
+              scheduler: str | None = None, progress: bool = True, resume: bool = True) -> BatchSummary:
+    """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
+
+    inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
+        folders (searched recursively; files that are not recordings are skipped with a note).
+    out: results file, .json / .csv / .parquet (the format follows the suffix).
+    options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, chain): the
+        same pipeline and model as ``fit_recording``, without its single-record extras (profile
+        bounds, model selection; ``options.model`` must be None).
+    chunk_size: records per compiled call (memory grows with it, not with the batch).
+    workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
+    scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
+    progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
+        status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
+
+    Raises ``TactileInputError`` only for bad settings (``out`` suffix, chunk size, model); bad
+    recordings become rows. ``n_failed`` counts rows whose status is not one of ``FIT_RAN``.
+    """
+    from ..io.results import RESULT_SUFFIXES, write_results
+
+    t_start = time.perf_counter()
+    out = Path(os.fspath(out))
+    model = DEFAULT_MODEL
+    if options.model is not None:
+        raise TactileInputError(f"the batch fits the default model; model={options.model!r} is for fit_recording",
+                                code="bad_setting")
+    if out.suffix.lower() not in RESULT_SUFFIXES:
+        raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
+        raise TactileInputError(f"chunk_size must be an int >= 1; got {chunk_size!r}", code="bad_setting")
+    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
+        raise TactileInputError(f"workers must be >= 1; got {workers!r}", code="bad_setting")
+    if workers is not None or scheduler is not None:
+        from .._optional import need
+
+        need("dask.distributed", "batch", "a Dask run (--workers, --scheduler)")    # before any file is read
+    options = _hashable(options)
+    tag = options_tag(options)
+
+    infos = scan_inputs(inputs, out)
+    t_scan = time.perf_counter() - t_start
+    kept = []
+    if resume:
+        kept = [r for r in _existing_rows(out) if r.get("status") not in TRANSIENT_STATUSES and _key(r) is not None]
+        for r in kept:
+            r["index"] = int(r["index"] or 0)               # CSV reads numbers back as float
+        _check_options(out, kept, tag)
+    done = {_key(r) for r in kept}
+    rows = list(kept)
+    n_skipped = 0
+    for info in infos:
+        n_skipped += sum((info.path, i) in done for i in range(max(info.n_records, 1)))
+        if info.error is not None and (info.path, 0) not in done:
+            rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model, tag))
+    chunks = _plan(infos, done, int(chunk_size))
+    total = sum(stop - start for _, segs in chunks for _, start, stop in segs)
+    timings = {"scan": t_scan, "read": 0.0, "spectra": 0.0, "fit": 0.0, "write": 0.0}
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, unit="rec", desc="batch", disable=not progress or total == 0, file=sys.stderr)
+
+    def consume(new_rows, t):
+        rows.extend(new_rows)
+        for k in ("read", "spectra", "fit"):
+            timings[k] += t[k]
+        write()
+        bar.update(len(new_rows))
+
+    def write():
+        t0 = time.perf_counter()
+        rows.sort(key=lambda r: _key(r) or ("", 0))      # the same order however the chunks finished
+        write_results(out, rows)
+        timings["write"] += time.perf_counter() - t0
+
+    if len(rows) != len(kept):
+        write()                                           # rows of unreadable files: saved before any fit
+    import jax
+
+    x64 = bool(jax.config.jax_enable_x64)
+    cache_dir = jax.config.jax_compilation_cache_dir or None
+    try:
+        if workers is None and scheduler is None:
+            for size, segs in chunks:
+                consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
+        else:
+            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
+    finally:
+        bar.close()
+    if not chunks:
+        write()
+    n_failed = sum(1 for r in rows if r.get("status") not in FIT_RAN)
+    timings["total"] = time.perf_counter() - t_start
+    return BatchSummary(n_rows=len(rows), n_failed=n_failed, n_skipped=n_skipped, out=out, timings=timings,
+                        n_fitted=total, model=model)
+
+
+def _hashable(options: FitOptions) -> FitOptions:
+    """FitOptions with tuples where a user gave lists (the compiled program is keyed on them)."""
+    g = options.gain_ratio
+    if g is not None and not isinstance(g, (int, float)):
+        g = tuple(float(v) for v in np.atleast_1d(np.asarray(g, float)))
+    v = None if options.velocity is None else tuple(float(x) for x in options.velocity)
+    return dataclasses.replace(options, gain_ratio=g, velocity=v)
+
+
+def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
+    from .._optional import need
+
+    dask = need("dask", "batch", "a Dask run (--workers, --scheduler)")
+    distributed = need("dask.distributed", "batch", "a Dask run (--workers, --scheduler)")
+    Client, LocalCluster, as_completed = distributed.Client, distributed.LocalCluster, distributed.as_completed
+    tag = options_tag(options)
+
+    cluster = None
+    with dask.config.set({"distributed.worker.multiprocessing-method": "spawn"}):
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler)
+        try:
+            futures = {}
+            for n, (size, segs) in enumerate(chunks):
+                part = [infos[fi] for fi, _, _ in segs]
+                fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, pure=False,
+                                    key=f"tactile-chunk-{n}-{os.getpid()}-{time.time_ns()}")
+                futures[fut] = (part, segs)
+            for fut in as_completed(futures):
+                part, segs = futures[fut]
+                try:
+                    consume(*fut.result())
+                except Exception as exc:  # noqa: BLE001 - a lost worker: the chunk's rows say so (transient)
+                    text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+                    lost = [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model, tag)
+                            for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)]
+                    consume(lost, {"read": 0.0, "spectra": 0.0, "fit": 0.0})
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()

@@ -1,0 +1,3 @@
+"""The ``tactile-jax`` command line: one module per command."""
+
+from .app import main as main

@@ -1,0 +1,1 @@
+"""Estimation: the compiled joint fit (problem, solver, pipeline), its options and results, model selection."""

@@ -1,0 +1,420 @@
+"""The joint fit of one record as a pure, fixed-shape function: ``fit`` runs it, ``batch`` vmaps it.
+
+``core(record, settings)`` goes from grouped periodogram products
+(``segments``) to a ``Summary`` of arrays:
+
+1. spectra, the usable band and the closed-form starts on the fixed grid (``band.select``);
+2. the fit's window of ``N_FIT`` bins from the first usable one, and on it the measured
+   blocks, their masks and weights (``data``);
+3. starting values: each pair fitted alone with the exact R curve (from its Eq. 6 speed and
+   Eq. 26 radius), and two more speed starts that take each axis in turn as the major one (a
+   pair that hears only window leakage mimics a fast slip along it); the texture knots from
+   the shallow spectrum;
+4. each start: the texture alone with the physics held, then every parameter; the lowest
+   cost goes on (``solve.levenberg_marquardt``: one loop of fixed iterations, no
+   data-dependent control flow, so records vmap side by side);
+5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
+   through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
+   other parameters the three pooled, none below the reduced chi-square;
+6. an integer status (``STATUS``) and the reported values.
+
+What only a single record needs (profile-likelihood bounds, more iterations for a fit
+that has not settled, model selection) is layered on top by ``fit`` through this same
+program, started from a given point (``Start``).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import digamma
+
+from .._numerics import tiny
+from .gauss_newton import gauss_newton
+from .lsq import equilibrated_inverse, fit_statistics
+from .pair_fit import exact_residuals as pair_residuals
+from ..spectral.prewhiten import filter_response
+from ..model.r_curve import log_g
+from ..spectral import band as band_mod
+from ..spectral.band import MIN_BINS as MIN_BINS
+from .data import N_FIT, JointData, grid_offsets, measure
+from .forward import N_PHYS, ModelSpectra, spectra_at_bins
+from .residuals import blocks, n_prior, residuals_and_model
+from .solve import levenberg_marquardt
+from ..spectral.segments import KERNEL_OFFSETS, Segments
+from ..model.spline import log_phi_at
+
+__all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "prepare",
+           "finish", "N_KNOTS", "ITERATIONS"]
+
+#: integer status codes of ``Summary.status``
+STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
+N_KNOTS = 12
+#: fixed iterations: per start on the texture alone, per start in all, then from the best start
+ITERATIONS = (3, 7, 18)
+POOR_FIT_REDCHI = 4.0
+#: a stop counts as converged when a full Gauss-Newton step would lower chi2 by less than this...
+DECREMENT_TOL = 1e-2
+#: ... or move every free non-texture parameter by less than this many of its sigmas
+STEP_TOL = 0.1
+_A_CLIP = (2e-5, 0.05)
+_OWN = 3          # vx, vy, a: each its own jackknife scale
+
+
+class Settings(NamedTuple):
+    """The fit's options as data (scalars; one compiled program for every choice).
+
+    min_snr, max_err, fmin, fmax (Hz), leakage_db: band selection (``band.select``).
+    smoothness: prior sd of the log texture spectrum's second differences between knots.
+    noise_floor, fit_gain: fit a shallow white-noise floor / the pairs' gain ratios.
+    conditioned: fit the conditioned deep PSDs. chain: blocks of the y pair conditioned on the x pair
+    (0: none, 1: y1 on (x1, x2) in place of y1's PSD, 2: also y2 on (x1, x2, y1) in place of the y
+    ratio and S22.1).
+    """
+
+    min_snr: float = 1.0
+    max_err: float = 0.5
+    fmin: float = -np.inf
+    fmax: float = np.inf
+    leakage_db: float = 20.0
+    smoothness: float = 1.0
+    noise_floor: bool = False
+    fit_gain: bool = False
+    conditioned: bool = True
+    chain: int = 2
+
+
+class Record(NamedTuple):
+    """One record's inputs: ``seg`` (``Segments``), depths (2,) m, gains (2,) deep/shallow gain ratios
+    (known, or the start when fitted), velocity (2,) |vx|, |vy| m/s held fixed where ``known``."""
+
+    seg: Segments
+    depths: jax.Array
+    gains: jax.Array
+    velocity: jax.Array
+    known: jax.Array
+
+
+class Summary(NamedTuple):
+    """What ``core`` returns (arrays; a leading batch axis under ``vmap``).
+
+    theta: (P,) fitted parameters (``model.PARAMS`` then the knots); cov: (P, P) covariance with
+    the error scales applied; sd: (P,) its root diagonal; free: (P,) fitted ones. scales: (P,)
+    variance scales of the unit Laplace covariance (jackknife or fallback); pooled: the pooled
+    one. chi2, redchi, n_data, cond, decrement, step_sigma: fit statistics (``lsq``). converged,
+    settled: the solve's stop, and whether only texture knots were still moving. status: index
+    into ``STATUS``. n_bins: usable bins fitted. located: ``Located``. jackknife: whether the
+    scales came from the jackknife. model: ``model.ModelSpectra`` at theta. jac: (R, P) the
+    residuals' Jacobian there. texture: (3, 2, L) the texture cross-sections of Eq. 18 / 19 along x and y
+    (``texture_sections``). data: the ``JointData`` (for what ``fit`` layers on top).
+    """
+
+    theta: jax.Array
+    cov: jax.Array
+    sd: jax.Array
+    free: jax.Array
+    scales: jax.Array
+    pooled: jax.Array
+    chi2: jax.Array
+    redchi: jax.Array
+    n_data: jax.Array
+    cond: jax.Array
+    decrement: jax.Array
+    step_sigma: jax.Array
+    converged: jax.Array
+    settled: jax.Array
+    status: jax.Array
+    n_bins: jax.Array
+    located: "Located"
+    jackknife: jax.Array
+    model: ModelSpectra
+    jac: jax.Array
+    texture: jax.Array
+    data: JointData
+
+
+def _window(x, i0):
+    """x (..., M) -> (..., N_FIT) from bin i0."""
+    start = (0,) * (x.ndim - 1) + (i0,)
+    return jax.lax.dynamic_slice(x, start, x.shape[:-1] + (N_FIT,))
+
+
+def _log_kernel(kernel):
+    return jnp.where(kernel > 0, jnp.log(jnp.clip(kernel, tiny(kernel), None)), -2e4)
+
+
+def _knot_start(log_k_obs, phi_obs, sel, log_knots):
+    """log Phi at the knots: a Gaussian-weighted mean (in log k) of the observed values."""
+    h = log_knots[1] - log_knots[0]
+    out = []
+    for width in (h, 100.0 * h):
+        w = jnp.where(sel[None, :], jnp.exp(-0.5 * jnp.square((log_k_obs[None, :] - log_knots[:, None]) / width)), 0.0)
+        sw = jnp.sum(w, axis=-1)
+        out.append((jnp.sum(w * jnp.where(sel, phi_obs, 0.0)[None, :], axis=-1) / jnp.where(sw > 0, sw, 1.0), sw))
+    (near, sw_near), (far, _) = out
+    return jnp.where(sw_near > 1e-6, near, far)
+
+
+def _pair_fits(om, log_ratio, err, band, depths, log_gains, speed0, a0, log_kernel, fit_gain):
+    """Each pair alone with the exact R curve (the starts of the joint fit): (speed, a, a's relative error,
+    usable) per pair. A pair that hears only window leakage (slip across it) has a flat ratio: its
+    speed runs away or its fit does not settle, and it is not usable."""
+    def one(y, e, m, g, v, a):
+        theta0 = jnp.stack([jnp.log(v), jnp.log(a), g])
+        free = jnp.array([True, True, False]) | (jnp.arange(3) == 2) & fit_gain
+        # pair_fit's exact-R model, averaged by the spectral window on the fixed kernel grid
+        args = (om, y, e, m, depths[0], depths[1], jnp.asarray(KERNEL_OFFSETS, om.dtype), log_kernel)
+        fit = gauss_newton(pair_residuals, theta0, args, free)
+        sd = jnp.sqrt(jnp.clip(jnp.diag(fit.cov) * jnp.maximum(fit.redchi, 1.0) / jnp.maximum(fit.redchi, tiny(
+            fit.redchi)), 0.0, None))
+        speed = jnp.exp(fit.theta[0])
+        ok = (fit.converged & jnp.all(jnp.isfinite(fit.theta)) & (jnp.sum(m) >= 5) & (speed < 10.0)
+              & (sd[0] < 0.5))
+        return speed, jnp.exp(fit.theta[1]), sd[1], ok
+
+    v = jnp.where(jnp.isfinite(speed0), speed0, 0.02)
+    a = jnp.where(jnp.isfinite(a0), a0, 2e-3)
+    return jax.vmap(one)(log_ratio, err, band, log_gains, v, jnp.clip(a, *_A_CLIP))
+
+
+class Prepared(NamedTuple):
+    """``prepare``'s output: data (``JointData``), starts (S, P) parameter vectors, free (P,) the fitted
+    parameters, first (P,) those of the texture-only iterations, band (``band.Band``)."""
+
+    data: JointData
+    starts: jax.Array
+    free: jax.Array
+    first: jax.Array
+    band: band_mod.Band
+
+
+def prepare(record: Record, settings: Settings) -> Prepared:
+    """Steps 1-3 of the module."""
+    seg = record.seg
+    spec = band_mod.spectra(seg)
+    depths = record.depths
+    log_gains = jnp.log(record.gains)
+    b = band_mod.select(spec, depths, log_gains, min_snr=settings.min_snr, max_err=settings.max_err,
+                        fmin=settings.fmin, fmax=settings.fmax, leakage_db=settings.leakage_db, n_fit=N_FIT)
+    i0 = b.i0
+    d_omega = seg.d_omega
+    om = d_omega * (i0 + jnp.arange(N_FIT))
+    band_w = _window(b.band, i0)
+    psd_w, csd_w, xy_w = _window(spec.psd, i0), _window(spec.csd, i0), _window(spec.xy, i0)
+    meas, w1, w2 = measure(psd_w, csd_w, xy_w, spec.dof)
+    dof = spec.dof
+    low = om >= 1.5 * d_omega
+    c22 = psd_w[1::2] - jnp.square(jnp.abs(csd_w)) / jnp.where(psd_w[0::2] > 0, psd_w[0::2], 1.0)
+    mask_h = band_w
+    mask_c22 = band_w & (c22 > 0) & low & settings.conditioned & (dof > 2.0)
+    both = band_w[0].any() & band_w[1].any()
+    blocks_on = (jnp.asarray(settings.chain) >= jnp.array([1, 2]))[:, None]
+    mask_xy = jnp.stack([band_w[1], band_w[1]]) & meas.chain_ok & low & blocks_on & both
+    mask_s11 = band_w.at[1].set(band_w[1] & ~mask_xy[0])
+    mask_h = mask_h.at[1].set(mask_h[1] & ~mask_xy[1])
+    mask_c22 = mask_c22.at[1].set(mask_c22[1] & ~mask_xy[1])
+    n_reg = jnp.array([2.0, 3.0])
+    k_xy = jnp.maximum(dof - n_reg, 1.0)
+    k1 = jnp.maximum(dof - 1.0, 1.0)
+    # the prewhitening filters on the half-bin grid of the kernel and at the bins
+    offsets = np.arange(-12, 2 * (N_FIT - 1) + 13) / 2.0
+    half = d_omega * (i0 + offsets)
+    resp_h = filter_response(seg.whitening, half, seg.fs)
+    resp_b = filter_response(seg.whitening, om, seg.fs)
+    d1 = depths[0]
+
+    # ---- starting values: Eq. 6 speeds, Eq. 26 radius, texture knots from the faster pair's shallow spectrum
+    known = record.known
+    v_pair, a_pair, a_rel, have = _pair_fits(om, _window(b.log_ratio, i0), _window(b.err, i0), band_w, depths,
+                                             log_gains, b.speed0, b.a0, data_kernel := _log_kernel(seg.kernel),
+                                             settings.fit_gain)
+    v_any = jnp.where(have.any(), jnp.max(jnp.where(have, v_pair, 0.0)), 0.02)
+    v0 = jnp.where(known, record.velocity, jnp.where(have, v_pair, 0.05 * v_any))
+    v_scale = jnp.maximum(jnp.max(v0), 1e-4)
+    v0 = jnp.maximum(v0, 1e-3 * v_scale)
+    a_rel = jnp.where(have & (a_rel > 0), a_rel, jnp.inf)
+    a0 = jnp.clip(jnp.where(jnp.isfinite(a_rel).any(), a_pair[jnp.argmin(a_rel)], 2e-3), *_A_CLIP)
+    main = jnp.argmax(jnp.where(b.n_band > 0, v0, -jnp.inf))
+    k_lo = 0.5 * om[0] / jnp.max(v0)
+    k_hi = 25.0 / (2.0 * d1)
+    log_knots = jnp.linspace(jnp.log(k_lo), jnp.log(jnp.maximum(k_hi, 4 * k_lo)), N_KNOTS)
+    shallow = spec.psd[0::2]
+    k_obs = spec.omega / v0[main]
+    sel = b.band[main] & (k_obs > 0)
+    log_k_obs = jnp.log(jnp.where(k_obs > 0, k_obs, 1.0))
+    phi_obs = (jnp.log(jnp.clip(shallow[main], tiny(shallow), None)) + jnp.log(v0[main]) - 2 * log_g(k_obs, d1, a0)
+               - jnp.log(jnp.sqrt(3 * jnp.pi) / a0))
+    log_phi0 = _knot_start(log_k_obs, phi_obs, sel, log_knots)
+    floors = band_mod.noise_floors(spec)
+    noise = jnp.where(settings.noise_floor, floors.at[:, 0].set(-700.0), floors)
+    noise0 = jnp.where(settings.noise_floor, jnp.log(jnp.mean(jnp.exp(floors[:, 0]))), -700.0)
+    theta0 = jnp.concatenate([jnp.log(v0), jnp.stack([jnp.log(a0), log_gains[0], log_gains[1], 0.0, noise0]),
+                              log_phi0])
+    p = theta0.shape[0]
+    idx = jnp.arange(p)
+    free = jnp.ones(p, bool)
+    free = jnp.where(idx < 2, ~known, free)
+    free = jnp.where((idx == 3) | (idx == 4), settings.fit_gain, free)
+    free = jnp.where(idx == 6, settings.noise_floor, free)
+    free = jnp.where(idx == 5, band_w[1].any(), free)              # nothing measures the y level without a band
+    prior_inv_sd = jnp.where(idx < 3, 1.0 / 3.0, jnp.where((idx == 3) | (idx == 4), 0.5, 0.0))
+    prior_inv_sd = jnp.where(free, prior_inv_sd, 0.0)
+    data = JointData(
+        meas=meas, omega=om, grid_abs=jnp.abs(d_omega * (i0 + jnp.asarray(grid_offsets()))),
+        log_kernel=data_kernel,
+        white_half=jnp.log(jnp.abs(resp_h) ** 2), white_bin=jnp.log(jnp.abs(resp_b) ** 2),
+        xy_white_half=jnp.conj(resp_h[0]) * resp_h[1], xy_white_bin=jnp.conj(resp_b[0]) * resp_b[1],
+        depths=depths, log_k_knots=log_knots, h_err=jnp.where(mask_h | band_w, _window(b.err, i0), 1.0),
+        w1=w1, w2=w2, mask_s11=mask_s11, mask_h=mask_h, mask_c22=mask_c22, mask_xy=mask_xy,
+        s11_weight=jnp.sqrt(dof), c22_weight=jnp.sqrt(k1), c22_offset=digamma(k1) - digamma(k1 + 1.0),
+        xy_c_weight=jnp.sqrt(k_xy), xy_c_offset=digamma(k_xy) - digamma(dof), log_noise=noise,
+        prior_center=theta0, prior_inv_sd=prior_inv_sd, smooth_inv_sd=1.0 / jnp.asarray(settings.smoothness))
+    # speed starts: as found, and each axis in turn as the major one at its own pair's speed, the other at
+    # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it)
+    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(0.15 * v0[m])) for m in (0, 1)]
+    starts = jnp.stack([theta0[:2]] + [jnp.where(known, theta0[:2], s) for s in alt])
+    stage1 = free & ((idx >= N_PHYS) | (idx == 5))          # the texture and the y level, physics held
+    return Prepared(data, jax.vmap(lambda lv: theta0.at[:2].set(lv))(starts), free, stage1, b)
+
+
+def statistics(theta, r, jac, free):
+    """``lsq.fit_statistics`` of the joint residuals: cov (unit x redchi), chi2, n_data, dof, redchi, cond,
+    decrement, step_sigma."""
+    return fit_statistics(theta, r, jac, free, n_prior=n_prior(theta.shape[0]))
+
+
+def settled_physics(step_sigma, free):
+    """Every free non-texture parameter's remaining Gauss-Newton step is below ``STEP_TOL`` sigma."""
+    step = jnp.abs(step_sigma)
+    physics = free & (jnp.arange(step.shape[-1]) < N_PHYS)
+    return jnp.all(jnp.isfinite(step)) & jnp.all(jnp.where(physics, step < STEP_TOL, True))
+
+
+def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi):
+    """Variance scales (P,) from the delete-one-group jackknife, the pooled one, and whether it ran."""
+    seg = record.seg
+    total = jnp.sum(seg.count)
+    n_groups = jnp.sum(seg.count > 0)
+
+    def one(g):
+        c = jnp.maximum(total - seg.count[g], 1.0)
+        psd = _window(jnp.sum(seg.auto, 0) - seg.auto[g], i0) / c
+        csd = _window(jnp.sum(seg.csd, 0) - seg.csd[g], i0) / c
+        xy = _window(jnp.sum(seg.xy, 0) - seg.xy[g], i0) / c
+        m, _, _ = measure(psd, csd, xy, seg.dof)
+        ok = m.chain_ok
+        full = data.meas
+        return m._replace(beta1=jnp.where(ok[0][:, None], m.beta1, full.beta1),
+                          beta2=jnp.where(ok[1][:, None], m.beta2, full.beta2),
+                          log_c=jnp.where(ok, m.log_c, full.log_c), chain_ok=full.chain_ok)
+
+    meas_k = jax.vmap(one)(jnp.arange(seg.count.shape[0]))
+    # the blocks are linear in the measured side with the weights held: the model cancels from the change
+    zero = jax.tree.map(jnp.zeros_like, jax.eval_shape(spectra_at_bins, theta, data))
+    r0 = blocks(zero, data.meas, data)
+    d_r = jax.vmap(lambda m: blocks(zero, m, data))(meas_k) - r0                   # (G, R_data)
+    jac_d = jac[:d_r.shape[1]] * free                                               # the data rows
+    d, _, inv = equilibrated_inverse(jac.T @ jac * (free[:, None] & free[None, :]), free)
+    unit = jnp.where(free[:, None] & free[None, :], inv / (d[:, None] * d[None, :]), 0.0)
+    shifts = -(d_r @ jac_d) @ unit                                                  # (G, P)
+    use = seg.count > 0
+    g = jnp.maximum(n_groups, 2)
+    mean = jnp.sum(jnp.where(use[:, None], shifts, 0.0), 0) / g
+    dev = jnp.where(use[:, None], shifts - mean, 0.0)
+    per_group = total / g
+    overlap = 1.0 + (seg.overlap - 1.0) / per_group
+    var = (g - 1) / g * jnp.sum(dev * dev, 0) * overlap
+    var_unit = jnp.diag(unit)
+    own = free & (jnp.arange(free.shape[0]) < _OWN) & (var_unit > 0)
+    ratio = var / jnp.where(own, var_unit, 1.0)
+    n_own = jnp.sum(own)
+    pooled = jnp.where(n_own > 0, jnp.sum(jnp.where(own, ratio, 0.0)) / jnp.maximum(n_own, 1), jnp.nan)
+    scales = jnp.maximum(jnp.where(own, ratio, pooled), redchi)
+    ran = (n_groups >= 5) & jnp.isfinite(pooled) & (pooled > 0) & jnp.all(jnp.isfinite(scales))
+    return scales, jnp.maximum(pooled, redchi), ran
+
+
+class Start(NamedTuple):
+    """Where ``core`` starts its final solve: with ``use``, from ``theta`` (P,) over ``free`` (P,) instead of
+    the best of its own starts (a refit: a profile point, another model, more iterations)."""
+
+    theta: jax.Array
+    free: jax.Array
+    use: jax.Array
+
+
+def no_start(n_params: int = N_PHYS + N_KNOTS) -> Start:
+    """The ``Start`` that lets ``core`` choose its own."""
+    return Start(np.zeros(n_params), np.zeros(n_params, bool), np.asarray(False))
+
+
+def core(record: Record, settings: Settings, start: Start | None = None) -> Summary:
+    """The joint fit of one record (see the module). Pure jnp, fixed shapes: jit and vmap freely.
+
+    start: a ``Start`` to refit from (``fit``'s extras run through this same program), or None.
+    """
+    prep = prepare(record, settings)
+    b = prep.band
+    starts, free, skip = prep.starts, prep.free, False
+    if start is not None:
+        starts = jnp.where(start.use, jnp.broadcast_to(start.theta.astype(starts.dtype), starts.shape), starts)
+        free = jnp.where(start.use, start.free, free)
+        skip = start.use
+    n_first, n_start, n_final = ITERATIONS
+    theta, r, jac, model = levenberg_marquardt(residuals_and_model, starts, prep.data, free, prep.first,
+                                               n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip)
+    return finish(record, prep.data, free, Located(b.i0, b.n_leak, b.k0, b.speed0), theta, r, jac, model)
+
+
+class Located(NamedTuple):
+    """What ``finish`` keeps of ``band.select``: the window's first bin, bins dropped as leakage, Eq. 4
+    wavenumbers (2,) and Eq. 6 speeds (2,)."""
+
+    i0: jax.Array
+    n_leak: jax.Array
+    k0: jax.Array
+    speed0: jax.Array
+
+
+def texture_sections(theta, cov, jac, model: ModelSpectra, data: JointData):
+    """Eq. 18 / 19: each pair's shallow PSD over the model's, times the model texture spectrum, at
+    k = omega / |v_axis|: (3, 2, L) k (rad/m), log power (relative units^2 per rad/m) and its one-sigma
+    error (the spectral noise and the parameters' covariance). Meaningful on ``data.mask_s11``."""
+    n_fit = data.omega.shape[0]
+    p = theta.shape[0]
+    v = jnp.exp(theta[:2])
+    k = data.omega[None, :] / v[:, None]
+    log_phi = lambda th: log_phi_at(jnp.log(k), data.log_k_knots, th[N_PHYS:])      # noqa: E731
+    # d log Phi(omega / v) / d theta, less d log S11 / d theta (from the Jacobian's first 2 L rows)
+    d = jax.jacfwd(lambda th: log_phi_at(jnp.log(data.omega[None, :] / jnp.exp(th[:2])[:, None]),
+                                         data.log_k_knots, th[N_PHYS:]))(theta)
+    d = d + jac[:2 * n_fit].reshape(2, n_fit, p) / data.s11_weight
+    var = jnp.einsum("plk,km,plm->pl", d, cov, d)
+    logp = log_phi(theta) - model.log_s11 + data.meas.log_s11
+    return jnp.stack([k, logp, jnp.sqrt(jnp.clip(var, 0.0, None) + 1.0 / jnp.square(data.s11_weight))])
+
+
+def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra) -> Summary:
+    """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals, their
+    Jacobian and the model's spectra there."""
+    cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free)
+    finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
+    settled = settled_physics(step_sigma, free)
+    converged = finite & ((decrement < DECREMENT_TOL) | settled)
+    scales, pooled, ran = _jackknife(record, theta, jac, free, data, b.i0, redchi)
+    fallback = jnp.maximum(redchi, 1.0) * jnp.maximum(record.seg.bin_factor, 1.0)
+    scales = jnp.where(ran, scales, fallback)
+    pooled = jnp.where(ran, pooled, fallback)
+    # lsq's cov carries redchi; the scales replace it
+    cov = cov * jnp.sqrt(jnp.outer(scales, scales)) / jnp.where(redchi > 0, redchi, 1.0)
+    sd = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0, None))
+    n_bins = jnp.sum(data.mask_s11[0]) + jnp.sum(data.mask_s11[1] | data.mask_xy[0])
+    status = jnp.where(n_bins < MIN_BINS, 1, jnp.where(~finite, 4, jnp.where(~converged, 2,
+                       jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
+    return Summary(theta, cov, sd, free, scales, pooled, chi2, redchi, n_data, cond, decrement, step_sigma,
+                   converged, settled & ~(decrement < DECREMENT_TOL), status, n_bins, b, ran,
+                   model, jac, texture_sections(theta, cov, jac, model, data), data)
+

@@ -1,0 +1,312 @@
+"""Joint estimation of slip velocity, contact radius, gains and texture spectrum, with error bars.
+
+``fit_recording`` (probe signals) and ``fit_spectra`` (recorded spectra) run the
+compiled joint pipeline of ``joint`` on one record: grouped periodograms on a
+fixed grid (``joint.segments``), the usable band and closed-form starts, the 2-D
+joint model of both pairs and their cross-pair chain fitted by fixed-iteration
+Levenberg-Marquardt from several starts, Laplace errors scaled by the
+delete-one-group jackknife. ``batch`` runs the same program on chunks. On top,
+for one record: more iterations where the fit has not settled, profile-likelihood
+bounds for what the data cannot determine (a speed consistent with 0, a contact
+window too weak to measure, a minor speed component), model selection, texture
+cross-sections (Eq. 18-19) and the problem emcee samples. ``result_from_summary``
+turns the pipeline's arrays into a ``FitResult``; fit and batch rows both come from it.
+Nothing here raises on a fit that fails: the result's ``status`` and ``message``
+say why (bad input raises ``TactileInputError``; ``batch`` turns it into a row).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from ..errors import TactileInputError
+from ..io.recording import Recording, validate_recording
+from ..model.sensor import PAPER_SENSOR
+from ..status import FIT_CODES, Status
+from ..uncertainty.profile import add_profiles
+from . import run
+from . import select as model_select
+from .core import Record, Settings, Summary
+from .forward import PARAMS
+from .options import FitOptions, known_gains, options_from_file, settings_of
+from .pair_fit import fit_pair
+from .problem import FitProblem
+from .residuals import residuals as joint_residuals
+from .result import A_BOUNDS, V_BOUNDS, FitResult, result_from_summary, set_contact_depth, texture_sections
+
+__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "settle", "NO_XY_MESSAGE"]
+
+#: more solves (``core.ITERATIONS[2]`` iterations each) for a fit that has not settled
+_MORE_SOLVES = 3
+_I = {name: i for i, name in enumerate(PARAMS)}
+
+
+def _fit_ratio_only(data, options: FitOptions) -> FitResult:
+    """Ratios without PSDs: each pair's exact R curve on its own (the fast path)."""
+    d1, d2 = data.depths
+    omega = np.asarray(data.omega, float)
+    log_ratio = np.log(np.asarray(data.ratio, float))
+    err = np.asarray(data.ratio_err, float) if data.ratio_err is not None else np.full_like(log_ratio, 0.1)
+    res = FitResult(model="pair", file=data.source, solver=options.solver)
+    gains = known_gains(options)
+    fits = []
+    if data.ratio_err is None:
+        res.warnings.append("no ratio_err given: every finite bin is used with a guessed error of 0.1, "
+                            "rescaled by the reduced chi-square")
+    for p in range(2):
+        mask = np.isfinite(log_ratio[p]) & np.isfinite(err[p]) & (omega > 0) & (err[p] <= options.max_err)
+        if mask.sum() < 4:
+            fits.append(None)
+            continue
+        fits.append(fit_pair(omega, log_ratio[p], err[p], mask, d1, d2, gain_ratio=gains[p], fit_gain=options.fit_gain,
+                             bin_factor=data.bin_factor or 1.0, kernel=_file_kernel(data),
+                             solver=options.solver, speed0=None if options.velocity is None else max(options.velocity[p], 1e-4)))
+    if all(f is None for f in fits):
+        res.status, res.message = "no_band", "fewer than 4 finite ratio bins in either pair"
+        return res
+    fx, fy = fits
+    if fx is not None:
+        res.set("vx", value=fx.speed, err=fx.speed_err)
+    if fy is not None:
+        res.set("vy", value=fy.speed, err=fy.speed_err)
+    best = min((f for f in fits if f is not None), key=lambda f: f.a_err / f.a if f.a > 0 else np.inf)
+    res.set("a", value=best.a, err=best.a_err)
+    res.converged = all(f.converged for f in fits if f is not None)
+    if not res.converged:
+        res.status = "not_converged"
+    res.redchi = float(np.mean([f.redchi for f in fits if f is not None]))
+    res.n_bins = int(sum(f.n_bins for f in fits if f is not None))
+    res.n_residuals = res.n_bins                      # one log ratio per bin
+    for name, f, g in (("gain_ratio", fx, gains[0]), ("gain_ratio_y", fy, gains[1])):
+        fitted = f is not None and options.fit_gain
+        res.set(name, value=f.gain_ratio if f is not None else g, err=f.gain_ratio_err if fitted else None,
+                fixed=not fitted)
+    set_contact_depth(res, data.curvature_radius)
+    res.message = ("ratios only: each pair fitted alone with the exact R curve (valid for slip along one axis "
+                   "or a large contact; under oblique slip with a small contact the smaller speed is pulled "
+                   "toward the larger)")
+    return res
+
+
+def _file_kernel(data):
+    """A spectra file's spectral window as ``(offsets, weights)``, or a single bin."""
+    if getattr(data, "kernel", None) is None:
+        return ((0.0,), (1.0,))
+    return tuple(tuple(float(x) for x in row) for row in np.asarray(data.kernel))
+
+
+def _bounds(p, side):
+    """Lower (side 0) or upper (side 1) bounds of the P parameters for the posterior's prior (log space)."""
+    out = np.full(p, -np.inf if side == 0 else np.inf)
+    for name, limits in (("log_vx", V_BOUNDS), ("log_vy", V_BOUNDS), ("log_a", A_BOUNDS), ("log_gx", (1e-3, 1e3)),
+                         ("log_gy", (1e-3, 1e3))):
+        out[_I[name]] = np.log(limits[side])
+    return out
+
+
+def _to_physical(curvature_radius):
+    r = float(curvature_radius) if curvature_radius else PAPER_SENSOR.curvature_radius
+
+    def to_physical(theta):
+        theta = np.asarray(theta)
+        a = np.exp(theta[..., _I["log_a"]])
+        return {"vx": np.exp(theta[..., _I["log_vx"]]), "vy": np.exp(theta[..., _I["log_vy"]]), "a": a,
+                "contact_depth": a ** 2 / r, "gain_ratio": np.exp(theta[..., _I["log_gx"]]),
+                "gain_ratio_y": np.exp(theta[..., _I["log_gy"]])}
+
+    return to_physical
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def record_of(signals, fs, depths, options: FitOptions, *, source=None) -> Record:
+    """The pipeline's ``Record`` of one recording (4, N) under ``options`` (spectral estimator, known gains
+    and velocity): what ``fit`` and ``batch`` fit. Raises ``TactileInputError`` for settings it cannot meet."""
+    return run.record(np.asarray(signals, float), float(fs), depths, gains=known_gains(options), velocity=options.velocity,
+                      method=options.method, nperseg=options.nperseg, prewhiten=options.prewhiten,
+                      settings=settings_of(options), source=source)
+
+
+def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record: int = 0) -> FitResult:
+    """Fit one record of a recording. Raises ``TactileInputError`` for bad input."""
+    validate_recording(rec)
+    one = rec.record(record)
+    src = rec.source or "<recording>"
+    options = options_from_file(options, one)
+    precision = "float64" if jax.config.jax_enable_x64 else "float32"
+    model_select.check_model(options.model, src)
+    if options.model == "hertz":
+        return _fit_hertz(one, options, src, record, precision)
+    try:
+        r = record_of(one.signals, one.fs, one.depths, options, source=src)
+    except TactileInputError as err:
+        raise err.with_source(src) from None
+    res = fit_record(r, options, curvature_radius=one.curvature_radius)
+    res.file, res.index, res.truth, res.precision = rec.source, record, dict(one.truth), precision
+    return res
+
+
+#: what a spectra file without the x-y cross-spectra costs its fit (``FitResult.message``)
+NO_XY_MESSAGE = ("the spectra have no x-y cross-spectra ('xy'): the y pair is fitted without conditioning on the "
+                 "x pair (the x-y chain is off), so the information both pairs share under oblique slip is lost "
+                 "and the errors of vx, vy and a are typically larger than a fit of the recording gives")
+
+
+def fit_spectra(data, options: FitOptions = FitOptions()) -> FitResult:
+    """Fit recorded spectra (``io.SpectraData``): PSD/CSD (with the x-y cross-spectra and the groups of
+    segments where given) through the joint pipeline, ratios alone per pair.
+
+    A file that ``tactile-jax spectra`` wrote from a recording gives the recording's fit: the same
+    ``Segments`` go into the same program."""
+    options = options_from_file(options, data)
+    if data.psd is None or data.csd is None:
+        return _fit_ratio_only(data, options)
+    xy = getattr(data, "xy", None)
+    count = getattr(data, "group_count", None)
+    groups = None if count is None else (count, data.group_psd, data.group_csd, data.group_xy)
+    warnings = []
+    n_segments = data.n_segments or (float(np.sum(count)) if count is not None else None)
+    if not n_segments:
+        warnings.append("n_segments not given: errors assume 1 segment (very conservative)")
+    if groups is None:
+        warnings.append("no groups of segments (group_*): no jackknife; the errors are the Laplace errors times "
+                        "max(redchi, 1) times the bin factor")
+    r = run.record_from_spectra(data.omega, data.psd, data.csd, data.depths, n_segments=float(n_segments or 1),
+                                xy=xy, groups=groups,
+                                kernel=None if getattr(data, "kernel", None) is None else _file_kernel(data),
+                                bin_factor=data.bin_factor, whitening=data.whitening, fs=data.fs,
+                                gains=known_gains(options), velocity=options.velocity, source=data.source)
+    res = fit_record(r, options, curvature_radius=data.curvature_radius, has_xy=xy is not None)
+    res.warnings.extend(warnings)
+    if xy is None and res.status not in ("unsupported", "failed"):
+        res.message = "; ".join(m for m in (res.message, NO_XY_MESSAGE) if m)
+    res.file = data.source
+    return res
+
+
+def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_radius=None,
+               has_xy: bool = True) -> FitResult:
+    """The joint pipeline on one ``joint.core.Record`` with what only a single record needs layered on
+    top (see the module). Never raises for a fit that fails: see ``status``."""
+    try:
+        options = model_select.options_for(options)
+        if options.window != "gaussian":
+            return FitResult(window=options.window, solver=options.solver, status="unsupported",
+                             message=f"the joint model has the Gaussian window only; window {options.window!r} "
+                                     "is not fitted")
+        if options.cross_pairs not in (None, 0, 1, 2):
+            return FitResult(status="unsupported", message=f"cross_pairs must be None, 0, 1 or 2, not "
+                                                           f"{options.cross_pairs!r}")
+        settings = settings_of(options, has_xy=has_xy)
+        return _layered(_Refitter(rec, settings), run.fit_one(rec, settings), options, curvature_radius)
+    except TactileInputError:
+        raise
+    except Exception as err:  # a bug or a numerical corner must not sink a batch: report it as data
+        return FitResult(window=options.window, solver=options.solver, status="failed",
+                         message=f"the fit failed: {type(err).__name__}: {' '.join(str(err).split())}")
+
+
+# --------------------------------------------------------------------------- one record's extras
+
+
+class _Refitter(NamedTuple):
+    """Refits of one record through the pipeline's program (``joint.run.refit``)."""
+
+    rec: Record
+    settings: Settings
+
+    def __call__(self, theta, free) -> Summary:
+        return run.refit(self.rec, self.settings, theta, free)
+
+
+def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
+    warnings = []
+    if int(s.status) == FIT_CODES.index(Status.NOT_CONVERGED):
+        s, more = _continue(refit, s)
+        warnings.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
+                        if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED) else
+                        f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
+    chosen, window_weak, note = _select(refit, s, options)
+    margin = None
+    if chosen is not None:
+        _, s, margin = chosen
+    model = model_select.model_name(s.free, options.velocity is not None)
+    res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
+                              window_weak=window_weak, segments=refit.rec.seg)
+    res.model_margin = margin
+    add_profiles(res, s, refit, profile_minor=options.profile_minor)
+    if note and note.startswith("model "):
+        res.message = "; ".join(m for m in (note, res.message) if m)
+    elif note:
+        warnings.append(note)
+    res.warnings.extend(warnings)
+    try:
+        res.texture_x, res.texture_y = texture_sections(s)
+    except Exception as err:  # pragma: no cover - reporting extra, never fatal
+        res.warnings.append(f"texture cross-sections not computed: {err}")
+    res.problem = _problem(s, res, curvature_radius)
+    res.data = s.data
+    res.summary = s
+    model_select.annotate(res)
+    return res
+
+
+def settle(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, int]:
+    """More solves of the pipeline's program from where a fit stopped unsettled (``fit`` and ``batch``):
+    the last summary and how many solves ran (0 where it had settled)."""
+    if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED):
+        return s, 0
+    return _continue(_Refitter(rec, settings), s)
+
+
+def _continue(refit: _Refitter, s: Summary):
+    """More solves from where a fit stopped unsettled; the last summary and how many solves ran."""
+    for k in range(1, _MORE_SOLVES + 1):
+        s = refit(s.theta, s.free)
+        if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED):
+            return s, k
+    return s, _MORE_SOLVES
+
+
+def _select(refit: _Refitter, s: Summary, options: FitOptions):
+    """``options.model``: ((name, summary, margin) or None, window_weak, note)."""
+    free = np.asarray(s.free, bool)
+    if options.model in ("slip", "auto"):
+        sel = model_select.select(s, free, lambda th, fr: (lambda f: (f, float(f.chi2)))(refit(th, fr)), options,
+                                  bin_factor=float(refit.rec.seg.bin_factor))
+        return (sel.name, s if sel.fit is None else sel.fit, sel.margin), False, sel.note
+    if options.model is None:
+        needed, note = model_select.window_needed(s, free, lambda th, fr: float(refit(th, fr).chi2))
+        return None, not needed, note
+    return None, False, ""
+
+
+def _problem(s: Summary, res: FitResult, curvature_radius) -> FitProblem:
+    scales = np.asarray(s.scales)
+    pooled = float(s.pooled)
+    return FitProblem(residuals=joint_residuals, args=s.data, theta=np.asarray(s.theta),
+                      free=tuple(bool(f) for f in np.asarray(s.free)), names=res.names, lower=_bounds(s.theta.size, 0),
+                      upper=_bounds(s.theta.size, 1), cov=np.asarray(s.cov), scale=pooled,
+                      to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scales / pooled))
+
+
+def _hertz_spectra(one, options):
+    from ..spectral.estimate import estimate_spectra
+
+    kw = {"nperseg": options.nperseg} if (options.nperseg and options.method == "welch") else {}
+    return estimate_spectra(np.asarray(one.signals, float), one.fs, method=options.method, prewhiten=options.prewhiten,
+                            **kw)
+
+
+def _fit_hertz(one, options, src, record, precision) -> FitResult:
+    try:
+        spec = _hertz_spectra(one, options)
+    except TactileInputError as err:
+        raise err.with_source(src) from None
+    res = model_select.fit_hertz(spec, one.depths, options, one.curvature_radius)
+    res.file, res.index, res.truth, res.precision = one.source, record, dict(one.truth), precision
+    return res

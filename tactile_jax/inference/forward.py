@@ -1,0 +1,119 @@
+"""The joint model's spectra as the estimator sees them, at the fit's bins.
+
+Parameters (a flat vector, ``PARAMS`` order): log|vx|, log|vy| (m/s), log a
+(m), log gx, log gy (deep/shallow amplitude gain ratios of the pairs), log ay
+(power level of the y pair's shallow probe relative to x1), log noise (a
+fitted shallow white-noise floor, units^2/Hz) and log Phi at the texture's
+knots (``spline``).
+
+The densities of the ten entries of the spectral matrix (``lines``) are
+computed on the integer-bin grid around the window, interpolated to half
+bins (cubic in log density: the resolution rule keeps the log ratio's fall
+below 0.15 per bin), and averaged by the estimator's spectral window with the
+prewhitening filter's weight |A|^2 (for x-y entries the complex conj(A_x) A_y):
+each bin's expectation is what Welch or multitaper averaging of these
+densities gives, so the resolution bias of steep spectra is modelled, not an
+error. Gains, levels and the white-noise floors (measured, or the fitted
+shallow one) complete the 4 x 4 matrix of (x1, x2, y1, y2) at each bin.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import logsumexp
+
+from ..model import cross_pair
+from .data import JointData
+from ..model.lines import ENTRIES, log_matrix
+
+__all__ = ["PARAMS", "N_PHYS", "param_names", "ModelSpectra", "spectra_at_bins", "half_bin_index"]
+
+#: names of the leading parameters; ``log_phi_j`` follow for the texture knots
+PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise")
+N_PHYS = len(PARAMS)
+
+
+def param_names(n_knots: int) -> tuple[str, ...]:
+    return PARAMS + tuple(f"log_phi_{j}" for j in range(n_knots))
+
+
+class ModelSpectra(NamedTuple):
+    """The model at the bins (L): log S11, log S12, log S22 (2, L) of each pair, noise floors included on
+    the autos; log_h (2, L) = log S12 - log S11; log_c22 (2, L) the conditioned deep PSD as estimated;
+    beta1 (L, 2), beta2 (L, 3), log_c (2, L): the chain of the y pair on the x pair."""
+
+    log_s11: jax.Array
+    log_h: jax.Array
+    log_c22: jax.Array
+    beta1: jax.Array
+    beta2: jax.Array
+    log_c: jax.Array
+
+
+def half_bin_index(n_fit: int, n_kernel: int) -> np.ndarray:
+    """(L, J) positions on the half-bin grid of each bin's kernel offsets (``segments.KERNEL_OFFSETS``)."""
+    return 2 * np.arange(n_fit)[:, None] + np.arange(n_kernel)[None, :]
+
+
+def _to_half_bins(f):
+    """(..., F) log densities on the integer grid -> (..., 2 F - 5) on half bins from its second point to its
+    last but one (cubic interpolation between points)."""
+    even = f[..., 1:-1]
+    odd = (-f[..., :-3] + 9.0 * f[..., 1:-2] + 9.0 * f[..., 2:-1] - f[..., 3:]) / 16.0
+    inter = jnp.stack([even[..., :-1], odd], axis=-1).reshape(f.shape[:-1] + (-1,))
+    return jnp.concatenate([inter, even[..., -1:]], axis=-1)
+
+
+def _window_average(half, white_half, idx, log_kernel):
+    """(C, L) log of each bin's kernel average of exp(half + white_half) (C, H) at ``idx`` (L, J)."""
+    return logsumexp(log_kernel + (half + white_half)[:, idx], axis=-1)
+
+
+def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
+    """``ModelSpectra`` of the parameters ``theta`` (P,) for ``data``."""
+    vx, vy, a = jnp.exp(theta[0]), jnp.exp(theta[1]), jnp.exp(theta[2])
+    log_phi = theta[N_PHYS:]
+    dens = log_matrix(jnp.stack([vx, vy, a]), log_phi, data.grid_abs, data.depths, data.log_k_knots)    # (10, F)
+    # gains and levels: x2 has gx, y1 the level ay (power), y2 both (amplitudes: half the power's log)
+    amp = jnp.stack([0.0, theta[3], 0.5 * theta[5], 0.5 * theta[5] + theta[4]])
+    dens = dens + jnp.stack([amp[i] + amp[j] for i, j in ENTRIES])[:, None]
+    half = _to_half_bins(dens)                                                        # (10, H)
+    n_fit = data.omega.shape[0]
+    idx = half_bin_index(n_fit, data.log_kernel.shape[0])
+    white = jnp.repeat(data.white_half, 3, axis=0)                                   # per pair entry
+    auto = _window_average(half[:6], white, idx, data.log_kernel) - jnp.repeat(data.white_bin, 3, axis=0)
+    pair = auto.reshape(2, 3, n_fit)                                                 # [pair][11, 12, 22]
+    noise = jnp.maximum(jnp.stack([jnp.full(2, theta[6]), jnp.full(2, -700.0)], -1), data.log_noise)  # (2, 2)
+    b11 = jnp.logaddexp(pair[:, 0], noise[:, :1])
+    b12 = pair[:, 1]
+    b22 = jnp.logaddexp(pair[:, 2], noise[:, 1:])
+    # x-y entries: complex weights conj(A_x) A_y on the signed grid
+    terms = data.log_kernel + half[6:][:, idx]                                       # (4, L, J)
+    top = jnp.max(terms, axis=-1)
+    avg = jnp.sum(jnp.exp(terms - top[..., None]) * data.xy_white_half[idx], axis=-1)
+    ref = b11[0]
+    cxy = avg / data.xy_white_bin * jnp.exp(top - ref)                               # (4, L), / S_x1x1
+    eps = 8.0 * jnp.finfo(b22.dtype).eps
+    coherent = jnp.clip(jnp.exp(2.0 * b12 - b11 - b22), 0.0, 1.0 - eps)
+    log_c22 = b22 + jnp.log1p(-coherent)
+    # the 4 x 4 matrix relative to S_x1x1, and the y pair's chain on the x pair
+    e = lambda v: jnp.exp(v - ref).astype(cxy.dtype)                                  # noqa: E731
+    c = jnp.conj
+    rows = [[e(b11[0]), e(b12[0]), cxy[0], cxy[1]],
+            [e(b12[0]), e(b22[0]), cxy[2], cxy[3]],
+            [c(cxy[0]), c(cxy[2]), e(b11[1]), e(b12[1])],
+            [c(cxy[1]), c(cxy[3]), e(b12[1]), e(b22[1])]]
+    m = jnp.moveaxis(jnp.stack([jnp.stack(r) for r in rows]), -1, 0)                  # (L, 4, 4)
+    ok = data.mask_xy.any(axis=0)[:, None, None]
+    m = jnp.where(ok, m, jnp.eye(4, dtype=m.dtype))                                   # unused bins: finite
+    out = []
+    for target, n in ((2, 2), (3, 3)):
+        beta, res = cross_pair.regression(m[:, :n, :n], m[:, :n, target], m[:, target, target])
+        res = jnp.maximum(res, 64.0 * jnp.finfo(res.dtype).eps * jnp.real(m[:, target, target]))
+        out.append((beta, jnp.log(res) + ref))
+    return ModelSpectra(b11, b12 - b11, log_c22, out[0][0], out[1][0], jnp.stack([out[0][1], out[1][1]]))
+

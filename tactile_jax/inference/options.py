@@ -1,0 +1,98 @@
+"""How to fit a scene: ``FitOptions``, and the compiled pipeline's ``Settings`` made from them."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from .core import Settings
+
+__all__ = ["FitOptions", "settings_of", "options_from_file", "known_gains"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """How to fit a scene (SI units). Defaults suit the paper's sensor at 1 kHz.
+
+    method, prewhiten, nperseg: spectral estimator (``spectral.segments.segments``): "welch"
+        (Hann, half overlap; ``nperseg`` samples, at least ``spectral.segments.min_nperseg()`` = 14,
+        checked with the recording's name where the segments are made; default the largest power
+        of two <= N / 8, lengthened for slow slips) or "multitaper"; the order of the Burg AR prewhitening
+        filter (0 or None: off).
+    velocity: known (|vx|, |vy|) in m/s (the arm's command, paper section 4.3): held fixed.
+    gain_ratio: known deep/shallow gain ratios (gx, gy) or one for both; None: the
+        file's ``gain_ratio`` if any, else 1. ``fit_gain``: fit them instead.
+    noise_floor: fit a white noise floor on the shallow probes.
+    smoothness: the prior sd of the log texture spectrum's second differences between its knots.
+    min_snr, max_err, fmin, fmax: usable-band selection (``spectral.band.select``; Hz).
+    leakage_db: a bin whose shallow PSD lies this far below the highest within +/- 3 bins holds
+        only spectral leakage (between the lines of a line texture) and is dropped.
+    conditioned: fit each pair's conditioned deep PSD S22.1 = S22 - |S12|^2 / S11 too: the deep
+        power the shallow probe does not explain, which 2-D slip through a small contact sets.
+    cross_pairs: the y pair conditioned on the x pair (``model.cross_pair``): None (default) 2 where
+        the data have the x-y cross-spectra (recordings, files from ``tactile-jax spectra``), else 0;
+        0 off, 1 y1 given (x1, x2) in place of y1's PSD, 2 also y2 given (x1, x2, y1) in place of
+        the y pair's ratio and S22.1.
+    profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
+        profile-likelihood interval (``FitResult.vx_lo`` ...).
+    window: "gaussian" (the joint model's window).
+    model: the scene model (``select.MODELS``): None (default: slip and contact window,
+        plus gains / noise floor as ``fit_gain`` / ``noise_floor`` say; a window the data do
+        not need is reported as a lower bound on a), "slip" (window negligible), "window",
+        "window+gain", "window+noise", "window+gain+noise" (these set the two flags), "hertz"
+        (each pair with the Hertz curve) or "auto" (chosen per recording by BIC; the choice
+        and margin are in the result).
+    solver: "optimistix" (Levenberg-Marquardt) or "jaxopt", for ratio-only spectra and the
+        Hertz model, which fit each pair alone.
+    """
+
+    method: str = "welch"
+    prewhiten: int | None = 8
+    nperseg: int | None = None
+    velocity: tuple[float, float] | None = None
+    gain_ratio: Any = None
+    fit_gain: bool = False
+    noise_floor: bool = False
+    smoothness: float = 1.0
+    min_snr: float = 1.0
+    max_err: float = 0.5
+    fmin: float | None = None
+    fmax: float | None = None
+    leakage_db: float = 20.0
+    conditioned: bool = True
+    cross_pairs: int | None = None
+    profile_minor: bool = True
+    window: str = "gaussian"
+    model: str | None = None
+    solver: str = "optimistix"
+
+
+def settings_of(options: FitOptions, *, has_xy: bool = True) -> Settings:
+    """The pipeline's ``Settings`` (data, not a new program) for ``options``."""
+    chain = (2 if has_xy else 0) if options.cross_pairs is None else int(options.cross_pairs)
+    return Settings(min_snr=float(options.min_snr), max_err=float(options.max_err),
+                    fmin=-np.inf if options.fmin is None else float(options.fmin),
+                    fmax=np.inf if options.fmax is None else float(options.fmax),
+                    leakage_db=float(options.leakage_db), smoothness=float(options.smoothness),
+                    noise_floor=bool(options.noise_floor), fit_gain=bool(options.fit_gain),
+                    conditioned=bool(options.conditioned), chain=chain if has_xy else 0)
+
+
+def options_from_file(options: FitOptions, rec) -> FitOptions:
+    """``options`` with what a file knows and the options leave open: its ``velocity`` and ``gain_ratio``."""
+    if options.velocity is None and rec.velocity is not None:
+        options = dataclasses.replace(options, velocity=tuple(abs(float(v)) for v in rec.velocity))
+    if options.gain_ratio is None and rec.gain_ratio is not None:
+        options = dataclasses.replace(options, gain_ratio=rec.gain_ratio)
+    return options
+
+
+def known_gains(options: FitOptions) -> tuple[float, float]:
+    """The deep/shallow gain ratios (gx, gy) that ``options`` give (1 where none)."""
+    g = options.gain_ratio
+    if g is None:
+        return 1.0, 1.0
+    g = np.atleast_1d(np.asarray(g, float))
+    return (float(g[0]), float(g[-1]))

@@ -1,0 +1,270 @@
+"""Nested scene models of the joint fit and an information criterion that picks one per recording.
+
+The models differ only in which entries of the joint model's parameter vector
+(``forward.PARAMS``) are free, so they share one compiled solve
+(``run.refit`` takes the free mask as data):
+
+    slip           slip velocity and texture; the window is negligible
+                   (a -> infinity: a is held at ``A_NEGLIGIBLE`` and reported
+                   as a 95 % lower bound, R = exp(-alpha eps), Eq. 5)
+    window         + the Gaussian contact window (a free): the default (model None
+                   adds gains / noise floor as FitOptions.fit_gain / noise_floor say)
+    window+gain    + unknown deep/shallow gain ratios of both pairs
+    window+noise   + a white noise floor on the shallow probes
+    window+gain+noise
+    hertz          each pair alone with the Hertz-window R curve (Eq. 12,
+                   ``pair_fit``): the Hertz window is not separable, so the
+                   joint 2-D model has no Hertz form (DESIGN.md); forced only
+
+A velocity known from the arm (paper section 4.3, ``FitOptions.velocity``)
+is held fixed in every model and the name gets ``+v_known``.
+
+``model="auto"`` fits the nested candidates around the base fit, each started
+from it, and keeps the lowest BIC with the correlated-bin correction
+
+    BIC = chi2 / (b c) + k ln(n / b)
+
+(b: the spectra's ``bin_factor``, adjacent bins are not independent; c: the
+reduced chi-square of the largest candidate, at least 1, a quasi-likelihood
+scale so that misfit is not read as evidence; k free parameters, n bins).
+The margin is the BIC of the runner-up minus the chosen one's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..errors import TactileInputError
+from .forward import PARAMS
+
+__all__ = [
+    "A_NEGLIGIBLE",
+    "MODELS",
+    "Candidate",
+    "Selection",
+    "annotate",
+    "check_model",
+    "fit_hertz",
+    "information_criterion",
+    "model_name",
+    "options_for",
+    "select",
+    "window_needed",
+]
+
+MODELS = ("auto", "slip", "window", "window+gain", "window+noise", "window+gain+noise", "hertz")
+#: contact radius (m) standing for "no window": its offset 3 (d2^2 - d1^2) / (2 a^2) is 1e-4 at the paper's depths
+A_NEGLIGIBLE = 0.1
+
+_I = {name: i for i, name in enumerate(PARAMS)}
+_I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_noise"]
+#: ``window_needed`` tests a contact radius measured to worse than this relative error
+WINDOW_TEST_REL_ERR = 0.05
+#: chi2 rise (in units of the covariance scale) below which a -> infinity is not rejected: one-sided 95 %
+_DELTA_95 = 2.71
+
+
+class Candidate(NamedTuple):
+    """One fitted model: name, its refit (None: the base fit), free mask (P,) and criterion value."""
+
+    name: str
+    fit: Any
+    free: np.ndarray
+    bic: float
+
+
+class Selection(NamedTuple):
+    """The chosen model: its fit and free mask, the margin (BIC units, None if forced) and the others."""
+
+    name: str
+    fit: Any
+    free: np.ndarray
+    margin: float | None
+    candidates: tuple
+    note: str
+
+
+def check_model(name: str | None, source: str | None = None) -> str | None:
+    """The model name (None: from the options' flags), or a one-line ``TactileInputError`` naming the choices."""
+    if name is not None and name not in MODELS:
+        raise TactileInputError(f"unknown model {name!r}; expected one of {', '.join(MODELS)}", source=source,
+                                code="bad_setting")
+    return name
+
+
+def options_for(options):
+    """``FitOptions`` with the flags a named model needs (fit_gain, noise_floor); None, auto and hertz unchanged."""
+    name = check_model(options.model)
+    if name in (None, "auto", "hertz"):
+        return options
+    return dataclasses.replace(options, fit_gain="gain" in name, noise_floor="noise" in name)
+
+
+def model_name(free, velocity_known: bool) -> str:
+    """Name of the model a free mask (joint-model order) fits."""
+    free = np.asarray(free, bool)
+    name = "window" if free[_I_A] else "slip"
+    if free[list(_I_GAINS)].any():
+        name += "+gain"
+    if free[_I_NOISE]:
+        name += "+noise"
+    return name + ("+v_known" if velocity_known else "")
+
+
+def information_criterion(chi2, n_free, n_data, *, bin_factor=1.0, scale=1.0, kind: str = "bic") -> float:
+    """BIC (or AIC) of a least-squares fit with correlated bins: chi2 / (b c) + k ln(n / b) (or 2 k)."""
+    b = max(float(bin_factor), 1.0)
+    c = max(float(scale), 1.0)
+    penalty = np.log(max(float(n_data) / b, 2.0)) if kind == "bic" else 2.0
+    return float(chi2) / (b * c) + penalty * int(n_free)
+
+
+def _slip_mask_theta(theta, free):
+    th = np.asarray(theta).copy()
+    fr = np.asarray(free).copy()
+    th[_I_A] = np.log(A_NEGLIGIBLE)
+    fr[_I_A] = False
+    return th, fr
+
+
+def select(summary, free, refit, options, *, bin_factor: float = 1.0) -> Selection:
+    """Apply ``options.model`` ("slip" or "auto") to the base fit ``summary`` (``joint.core.Summary``).
+
+    refit(theta, free) -> (fit, chi2): the joint solve from ``theta`` over ``free`` (``fit.theta``
+    its parameters). "slip" refits with a held at ``A_NEGLIGIBLE``; "auto" fits slip, +gain and
+    +noise around the base (each from its optimum) and keeps the lowest ``information_criterion``.
+    """
+    free = np.asarray(free, bool)
+    known = options.velocity is not None
+    theta = np.asarray(summary.theta)
+    if options.model == "slip":
+        th, fr = _slip_mask_theta(theta, free)
+        fit, _ = refit(th, fr)
+        return Selection(model_name(fr, known), fit, fr, None, (), "")
+    n_data = float(summary.n_data)
+    fits = [(free, None, float(summary.chi2))]
+    th, fr = _slip_mask_theta(theta, free)
+    fits.append((fr, *refit(th, fr)))
+    if not free[list(_I_GAINS)].all():
+        fr = free.copy()
+        fr[list(_I_GAINS)] = True
+        fits.append((fr, *refit(theta, fr)))
+    if not free[_I_NOISE]:
+        fr = free.copy()
+        fr[_I_NOISE] = True
+        th = theta.copy()
+        th[_I_NOISE] = float(np.max(np.asarray(summary.data.log_noise)[:, 0]))
+        fits.append((fr, *refit(th, fr)))
+    fits = [(fr, f, c) for fr, f, c in fits if np.isfinite(c)]
+    largest = max(fits, key=lambda t: int(t[0].sum()))
+    scale = largest[2] / max(n_data - largest[0].sum(), 1.0)
+    cands = sorted((Candidate(model_name(fr, known), f, fr,
+                              information_criterion(c, fr.sum(), n_data, bin_factor=bin_factor, scale=scale))
+                    for fr, f, c in fits), key=lambda c: c.bic)
+    best = cands[0]
+    margin = float(cands[1].bic - best.bic) if len(cands) > 1 else None
+    note = (f"model {best.name} chosen by BIC (margin {margin:.1f} over {cands[1].name}; "
+            + ", ".join(f"{c.name} {c.bic - best.bic:+.1f}" for c in cands[1:]) + ")") if margin is not None else ""
+    return Selection(best.name, best.fit, best.free, margin, tuple(cands), note)
+
+
+def window_needed(summary, free, refit_chi2) -> tuple[bool, str]:
+    """Does the data reject the slip model (a -> infinity)? Tested when a is loosely measured.
+
+    A likelihood-ratio test: when holding a at ``A_NEGLIGIBLE`` (speeds, gains and texture
+    refitted; ``refit_chi2(theta, free) -> chi2``) raises chi2 by less than 2.71 x a's variance
+    scale, the data cannot tell the window from none at 95 %, and a fitted radius would be a
+    number fitted into noise. Returns (needed, note). The caller keeps the window fit for the
+    speeds (its errors include a's uncertainty) and reports a as a lower bound when not needed.
+    """
+    free = np.asarray(free, bool)
+    if not free[_I_A]:
+        return True, ""
+    sd = np.asarray(summary.sd)
+    if sd[_I_A] < WINDOW_TEST_REL_ERR:
+        return True, ""
+    scale = float(np.asarray(summary.scales)[_I_A])
+    th, fr = _slip_mask_theta(summary.theta, free)
+    chi2 = refit_chi2(th, fr)
+    if not np.isfinite(chi2):
+        return True, ""
+    rise = chi2 - float(summary.chi2)
+    if rise >= _DELTA_95 * scale:
+        return True, ""
+    return False, (f"holding a at {1e3 * A_NEGLIGIBLE:.0f} mm changes chi2 by {rise:+.2f}, below the 95 % threshold "
+                   f"{_DELTA_95 * scale:.2f}: the data do not need the contact window")
+
+
+def annotate(res) -> None:
+    """Say so where a reported value's error bar exceeds the value itself (and nothing said it yet)."""
+    said = res.message or ""
+    extra = []
+    for name in ("vx", "vy", "a", "gain_ratio", "gain_ratio_y"):
+        v, e = getattr(res, name, None), getattr(res, name + "_err", None)
+        if v is None or e is None or not np.isfinite(e):
+            continue
+        if e > abs(v) and f"{name} is" not in said:
+            extra.append(f"{name} is not determined: its error bar ({e:.3g}) exceeds its value ({v:.3g})")
+    if extra:
+        res.message = "; ".join([m for m in [said] if m] + extra)
+
+
+def fit_hertz(spec, depths, options, curvature_radius=None):
+    """The "hertz" model: each pair's log amplitude ratio alone with the Hertz R curve (``pair_fit``).
+
+    Started from the Gaussian exact fit of the same pair. Valid for slip
+    along one axis (the curve assumes a texture along the slip, ky = 0).
+    """
+    from .options import known_gains
+    from .pair_fit import fit_pair
+    from .result import FitResult, set_contact_depth
+    from ..spectral.estimate import amplitude_ratio, usable_band, whitened_psd
+
+    d1, d2 = (float(v) for v in depths)
+    ratio = amplitude_ratio(spec)
+    band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err, fmin=options.fmin,
+                                  fmax=options.fmax))
+    omega, lr, err = (np.asarray(v) for v in (ratio.omega, ratio.log_ratio, ratio.log_ratio_err))
+    gains = known_gains(options)
+    res = FitResult(model="hertz", window="hertz", solver=options.solver)
+    # the curve holds for slip along one axis: the pair with the most shallow power in its band is that
+    # axis; the other pair hears only window leakage, whose ratio says nothing about its speed (DESIGN.md)
+    psd = np.asarray(spec.psd)
+    power = [float(np.sum(psd[2 * p][band[p]])) if band[p].sum() >= 5 else -1.0 for p in range(2)]
+    major = int(np.argmax(power))
+    fits = [None, None]
+    for p in (major,):
+        if band[p].sum() < 5:
+            continue
+        kw = dict(gain_ratio=gains[p], fit_gain=options.fit_gain, kernel=spec.kernel, bin_factor=spec.bin_factor,
+                  spectrum=np.asarray(whitened_psd(spec)[2 * p]), solver=options.solver)
+        if options.velocity is not None:
+            kw["speed0"] = max(options.velocity[p], 1e-4)
+        g = fit_pair(omega, lr[p], err[p], band[p], d1, d2, curve="exact", **kw)
+        if np.isfinite(g.speed) and np.isfinite(g.a):
+            kw.update(speed0=g.speed, a0=g.a)
+        fits[p] = fit_pair(omega, lr[p], err[p], band[p], d1, d2, curve="hertz", **kw)
+    ok = [f for f in fits if f is not None]
+    if not ok:
+        res.status, res.message = "no_band", "fewer than 5 usable bins in either pair"
+        return res
+    f = fits[major]
+    res.set(("vx", "vy")[major], value=f.speed, err=f.speed_err)
+    ok = [f]
+    res.set("a", value=f.a, err=f.a_err)
+    res.converged = all(f.converged for f in ok)
+    res.status = "ok" if res.converged else "not_converged"
+    res.redchi = float(np.mean([f.redchi for f in ok]))
+    res.n_bins = int(sum(f.n_bins for f in ok))
+    res.set("gain_ratio", value=f.gain_ratio, err=f.gain_ratio_err if options.fit_gain else None,
+            fixed=not options.fit_gain)
+    set_contact_depth(res, curvature_radius)
+    other = ("vx", "vy")[1 - major]
+    res.message = (f"Hertz window: the {('x', 'y')[major]} pair (most power) fitted alone with the Hertz R curve "
+                   f"of a texture along the slip; {other} not determined by this model (slip along one axis "
+                   "assumed; the joint 2-D model has the separable Gaussian window only)")
+    annotate(res)
+    return res

@@ -1,0 +1,169 @@
+"""Scene recipes: TOML files that say how to fit a kind of scene (``fits/*.toml``).
+
+Schema (shared with the paper-experiment recipes)::
+
+    description = "what scene this is for"
+    [fit]        # FitOptions fields, plus model = "auto" or a model name (model_select.MODELS)
+    method = "welch"
+    velocity = [0.047, 0.0]      # m/s, known from the arm: held fixed
+    model = "auto"
+    [simulate]   # optional: the scene a recipe reproduces (scene.Scene fields; ignored by `fit --scene`)
+    velocity = [0.047, 0.0]
+    contact_radius = 2.2e-3
+    [simulate.texture]           # optional: name = a texture class + its fields (RandomTexture,
+    name = "WireNet"             #   DirectionalTexture, ModeTexture, Grating, WireNet)
+    pitch = 0.5e-3
+    [sweep]      # optional, free-form: read by fits/reproduce.py only
+
+SI units throughout (m, m/s, Hz). Unknown keys or wrong types are a one-line
+``TactileInputError`` naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import tomllib
+
+from ..errors import TactileInputError
+from ..inference.options import FitOptions
+from ..inference.select import MODELS
+
+__all__ = ["Recipe", "list_recipes", "load_recipe", "recipe_options", "scene_from_recipe"]
+
+_TOP_KEYS = ("description", "fit", "simulate", "sweep")
+_TEXTURES = ("RandomTexture", "DirectionalTexture", "ModeTexture", "Grating", "WireNet")
+_OPTION_FIELDS = {f.name: f for f in dataclasses.fields(FitOptions)}
+_CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"),
+            "model": MODELS}
+
+
+class Recipe(NamedTuple):
+    """A loaded recipe: name (file stem), description, FitOptions, and the scene it reproduces (dict or None)."""
+
+    name: str
+    description: str
+    options: FitOptions
+    simulate: dict | None
+    path: str
+
+
+def _bad(path, problem: str) -> TactileInputError:
+    return TactileInputError(problem, source=str(path), code="bad_setting")
+
+
+def _number(path, key, value, *, integer=False, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _bad(path, f"[fit] {key} must be a number, got {value!r}")
+    if integer and int(value) != value:
+        raise _bad(path, f"[fit] {key} must be an integer, got {value!r}")
+    if positive and not value > 0:
+        raise _bad(path, f"[fit] {key} must be positive, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _option(path, key: str, value) -> Any:
+    """One [fit] entry, checked and converted to the FitOptions field's type."""
+    if key in _CHOICES:
+        if value not in _CHOICES[key]:
+            raise _bad(path, f"[fit] {key} = {value!r}: expected one of {', '.join(_CHOICES[key])}")
+        return value
+    if key in ("fit_gain", "noise_floor"):
+        if not isinstance(value, bool):
+            raise _bad(path, f"[fit] {key} must be true or false, got {value!r}")
+        return value
+    if key == "velocity":
+        if not (isinstance(value, list) and len(value) == 2):
+            raise _bad(path, f"[fit] velocity must be [vx, vy] in m/s, got {value!r}")
+        return tuple(abs(_number(path, key, v)) for v in value)
+    if key == "gain_ratio":
+        vals = value if isinstance(value, list) else [value]
+        if not 1 <= len(vals) <= 2:
+            raise _bad(path, f"[fit] gain_ratio must be g or [gx, gy], got {value!r}")
+        vals = [_number(path, key, v, positive=True) for v in vals]
+        return vals[0] if len(vals) == 1 else tuple(vals)
+    if key == "prewhiten":
+        n = _number(path, key, value, integer=True)
+        return n if n > 0 else None
+    if key == "nperseg":
+        return _number(path, key, value, integer=True, positive=True)
+    if key in ("smoothness", "max_err"):
+        return _number(path, key, value, positive=True)
+    return _number(path, key, value)          # min_snr, fmin, fmax, leakage_db
+
+
+def recipe_options(table: dict, path="<recipe>", base: FitOptions | None = None) -> FitOptions:
+    """FitOptions from a recipe's [fit] table (unknown keys: ``TactileInputError``)."""
+    if not isinstance(table, dict):
+        raise _bad(path, "[fit] must be a table")
+    changes = {}
+    for key, value in table.items():
+        if key not in _OPTION_FIELDS:
+            raise _bad(path, f"unknown key [fit] {key!r}; expected one of {', '.join(_OPTION_FIELDS)}")
+        changes[key] = _option(path, key, value)
+    return dataclasses.replace(base or FitOptions(), **changes)
+
+
+def _scene_table(table, path) -> dict:
+    from ..simulation.scene import Scene
+
+    if not isinstance(table, dict):
+        raise _bad(path, "[simulate] must be a table")
+    fields = {f.name for f in dataclasses.fields(Scene)}
+    for key in table:
+        if key not in fields:
+            raise _bad(path, f"unknown key [simulate] {key!r}; expected Scene fields ({', '.join(sorted(fields))})")
+    if "texture" in table and not (isinstance(table["texture"], dict) and "name" in table["texture"]):
+        raise _bad(path, f"[simulate.texture] must be a table with a name ({', '.join(_TEXTURES)})")
+    return dict(table)
+
+
+def load_recipe(path) -> Recipe:
+    """Read and check a TOML recipe. Raises ``TactileInputError`` (one line, naming the file) for bad ones."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise _bad(p, "recipe file not found") from None
+    except tomllib.TOMLDecodeError as err:
+        raise _bad(p, f"not valid TOML: {err}") from None
+    for key in doc:
+        if key not in _TOP_KEYS:
+            raise _bad(p, f"unknown key {key!r}; expected {', '.join(_TOP_KEYS)}")
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise _bad(p, "description must be a string")
+    options = recipe_options(doc.get("fit", {}), p)
+    sim = _scene_table(doc["simulate"], p) if "simulate" in doc else None
+    return Recipe(p.stem, description, options, sim, str(p))
+
+
+def scene_from_recipe(recipe: Recipe):
+    """The ``scene.Scene`` of a recipe's [simulate] table ([simulate.texture]: ``name`` = class, then its fields)."""
+    from ..simulation import texture as textures
+    from ..simulation.scene import Scene
+
+    if recipe.simulate is None:
+        raise _bad(recipe.path, "the recipe has no [simulate] table")
+    table = dict(recipe.simulate)
+    tex = dict(table.pop("texture", {"name": "RandomTexture"}))
+    name = tex.pop("name")
+    if name not in _TEXTURES:
+        raise _bad(recipe.path, f"[simulate.texture] name = {name!r}: expected {', '.join(_TEXTURES[:-1])} or {_TEXTURES[-1]}")
+    if "contact_depth" in table and "contact_radius" not in table:
+        table["contact_radius"] = None
+    for key in ("velocity", "gains", "dc_offset"):
+        if key in table:
+            table[key] = tuple(float(v) for v in table[key])
+    try:
+        return Scene(texture=getattr(textures, name)(**tex), **table)
+    except TypeError as err:
+        raise _bad(recipe.path, f"[simulate]: {err}") from None
+
+
+def list_recipes(folder="fits") -> list[Recipe]:
+    """Every recipe in a folder, sorted by name."""
+    return [load_recipe(p) for p in sorted(Path(folder).glob("*.toml"))]

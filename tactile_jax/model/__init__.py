@@ -1,0 +1,1 @@
+"""The physics, as pure jnp functions: depth decay, contact windows, the R curve, line probes, the spectral matrix."""

@@ -1,0 +1,136 @@
+"""The 4 x 4 spectral matrix of the probes as line integrals over the k-plane, with a cheap exact Jacobian.
+
+A texture of isotropic power spectrum Phi(|k|) slides at (vx, vy); the mode k
+rings at omega = k . v. Channel x(d) weighs it by G(kx; d, a) L(ky), channel
+y(d) by G(ky; d, a) L(kx), with G the normalised window-depth response
+(``r_curve.log_g``) and L(q) = exp(-a^2 q^2 / 6) the Gaussian window's
+spectrum across the probe. Every entry of the spectral matrix of
+(x1, x2, y1, y2) is a line integral over k . v = omega,
+
+    S_ij(omega) = Int Phi(|k|) c_i(k) c_j(k) du / |v_u|,
+
+evaluated here on ONE set of Gauss-Legendre nodes per omega, shared by the ten
+entries: the discrete sums then keep the matrix's Gram structure, so that the
+conditioned spectra of the cross-pair chain (small differences of these
+entries where the pairs are coherent) are as accurate as the rule itself.
+The line is parametrised by ky when |vx| >= |vy| and by kx otherwise, over
+the union of both pairs' ranges (where their factors are above exp(-25) of
+their reach), in six panels split at the kinks of G (kx = 0, ky = 0) and where
+either pair's window factor ends.
+
+``log_matrix`` carries its own JVP: the node positions and channel factors
+depend on (vx, vy, a) only, so three forward tangents go through them (one
+``jax.jvp`` each: a ``jax.linearize`` mapped over them ran 2x slower inside the
+Jacobian); the texture knots enter through the spline's basis at the
+nodes, a fixed linear map. A Jacobian over all parameters then costs about
+four evaluations instead of one per parameter.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import logsumexp
+
+from .._numerics import tiny
+from .._quadrature import gauss_legendre
+from .r_curve import log_g
+from .spline import log_phi_at
+
+__all__ = ["ENTRIES", "N_NODES", "log_matrix"]
+
+#: (channel, channel) of each entry of ``log_matrix``; channels (x1, x2, y1, y2)
+ENTRIES = ((0, 0), (0, 1), (1, 1), (2, 2), (2, 3), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3))
+#: Gauss-Legendre nodes per panel (six panels per line)
+N_NODES = 12
+_LOG_EDGE = 25.0        # a factor's reach: where it has fallen exp(-25) below its peak
+
+
+def _nodes(p, omega, d1, d2):
+    """Nodes of the line k . v = omega for (vx, vy, a) = p at omega (F,) >= 0, rad/s.
+
+    Returns log|k| (F, N), the log quadrature weights including 1 / |v_u| (F, N; -2e4 where a
+    panel is empty) and the four channels' log factors (4, F, N).
+    """
+    vx, vy, a = p[0], p[1], p[2]
+    k_g = _LOG_EDGE / (2.0 * d1)
+    k_l = (3.0 * _LOG_EDGE) ** 0.5 / a
+    by_ky = vx >= vy
+    v_u = jnp.where(by_ky, vx, vy)
+    v_o = jnp.where(by_ky, vy, vx)
+    has_o = v_o > 0
+    safe = jnp.where(has_o, v_o, 1.0)
+
+    def reach(limit):       # u with |(omega - u v_o) / v_u| <= limit (every u when v_o = 0)
+        return (jnp.where(has_o, (omega - limit * v_u) / safe, -jnp.inf),
+                jnp.where(has_o, (omega + limit * v_u) / safe, jnp.inf))
+
+    lo_a, hi_a = reach(k_g)                 # the pair sensitive to the solved component
+    lo_a, hi_a = jnp.maximum(lo_a, -k_l), jnp.minimum(hi_a, k_l)
+    lo_b, hi_b = reach(k_l)                 # the pair sensitive to u
+    lo_b, hi_b = jnp.maximum(lo_b, -k_g), jnp.minimum(hi_b, k_g)
+    lo, hi = jnp.minimum(lo_a, lo_b), jnp.maximum(hi_a, hi_b)
+    hi = jnp.maximum(hi, lo)
+    inner = [jnp.zeros_like(omega), jnp.where(has_o, omega / safe, jnp.inf), jnp.full_like(omega, -k_l),
+             jnp.full_like(omega, k_l), jnp.where(has_o, (omega - k_l * v_u) / safe, -jnp.inf)]
+    cuts = jnp.sort(jnp.stack([lo] + [jnp.clip(c, lo, hi) for c in inner] + [hi]), axis=0)     # (7, F)
+    x, w = (jnp.asarray(t, omega.dtype) for t in gauss_legendre(N_NODES))
+    half = 0.5 * (cuts[1:] - cuts[:-1])                                                      # (6, F)
+    mid = 0.5 * (cuts[1:] + cuts[:-1])
+    u = jnp.moveaxis(mid[..., None] + half[..., None] * x, 0, 1).reshape(omega.shape[0], -1)    # (F, N)
+    wt = jnp.moveaxis(half[..., None] * w, 0, 1).reshape(omega.shape[0], -1)
+    solved = (omega[:, None] - u * v_o) / v_u
+    kx = jnp.where(by_ky, solved, u)
+    ky = jnp.where(by_ky, u, solved)
+    log_w = jnp.where(wt <= 0, -2e4, jnp.log(jnp.clip(wt, tiny(wt), None)) - jnp.log(v_u))
+    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + tiny(kx))
+    lx, ly = -jnp.square(a * kx) / 6.0, -jnp.square(a * ky) / 6.0
+    # one log_g over the four channels (written four times it compiles four times)
+    k_s = jnp.stack([kx, kx, ky, ky])
+    depth = jnp.stack([d1, d2, d1, d2])[:, None, None]
+    return log_k, log_w, log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx])
+
+
+def _terms(log_k, log_w, ch, log_k_knots, log_phi):
+    """(10, F, N) log integrands of the entries at the nodes."""
+    base = log_phi_at(log_k, log_k_knots, log_phi) + log_w
+    return jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES])
+
+
+@jax.custom_jvp
+def log_matrix(p, log_phi, omega, depths, log_k_knots):
+    """log of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s: (10, F).
+
+    p: (vx, vy, a) in m/s, m/s, m (positive). log_phi: (n,) log texture spectrum at the knots
+    ``log_k_knots`` (log rad/m). depths: (2,) d1, d2 in m. No gains, levels or noise.
+    """
+    log_k, log_w, ch = _nodes(p, omega, depths[0], depths[1])
+    return jnp.maximum(logsumexp(_terms(log_k, log_w, ch, log_k_knots, log_phi), axis=-1), -1e4)
+
+
+@log_matrix.defjvp
+def _log_matrix_jvp(primals, tangents):
+    p, log_phi, omega, depths, log_k_knots = primals
+    p_dot, phi_dot = tangents[0], tangents[1]
+    d1, d2 = depths[0], depths[1]
+    # the nodes and their three tangents, one jvp each
+    fn = lambda q: _nodes(q, omega, d1, d2)                                        # noqa: E731
+    node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
+    log_k, log_w, ch = node_t[0][0]
+    d_log_k, d_log_w, d_ch = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
+    # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
+    spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
+    phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
+    basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
+    base = phi + log_w
+    terms = jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES])                 # (10, F, N)
+    out = logsumexp(terms, axis=-1)
+    weight = jnp.exp(terms - out[..., None])                                     # softmax over the nodes
+    floor = out > -1e4
+    out = jnp.maximum(out, -1e4)
+    d_base = dphi * d_log_k + d_log_w                                             # (3, F, N)
+    d_terms = jnp.stack([d_base + d_ch[:, i] + d_ch[:, j] for i, j in ENTRIES], axis=1)   # (3, 10, F, N)
+    jac_p = jnp.moveaxis(jnp.sum(weight * d_terms, axis=-1), 0, -1)               # (10, F, 3)
+    jac_phi = jnp.einsum("efn,fnj->efj", weight, basis)                           # (10, F, n)
+    out_dot = jnp.einsum("efi,i->ef", jac_p, p_dot) + jnp.einsum("efj,j->ef", jac_phi, phi_dot)
+    return out, jnp.where(floor, out_dot, 0.0)

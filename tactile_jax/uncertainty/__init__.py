@@ -1,0 +1,1 @@
+"""Error bars beyond the Laplace covariance: profile likelihood and emcee posteriors."""

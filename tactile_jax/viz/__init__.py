@@ -1,0 +1,1 @@
+"""Figures and the text fit report (matplotlib is imported only where a figure is drawn)."""
