@@ -1,6 +1,6 @@
 """Tests run in float64 (chosen here, as the library leaves it to the entry points).
 
-Every joint fit runs one compiled program (``joint.core``: its inputs have one shape whatever the
+Every joint fit runs one compiled program (``inference.core``: its inputs have one shape whatever the
 recording), so the suite pays its compilation once. The modules run in parallel (pytest-xdist,
 ``--dist loadgroup`` in pyproject.toml): every module that runs the joint pipeline goes to one worker
 (``JOINT_MODULES``), a module with costly fixtures to one worker, the other tests one by one, and the

@@ -1,7 +1,7 @@
 """The joint fit of simulated scenes: recovery with honest error bars, one compiled program, failure as data.
 
 A small seeded version of benchmarks/coverage.py; every fit shares the one compiled program of
-``joint.core`` (its inputs have one shape whatever the recording's length or band).
+``inference.core`` (its inputs have one shape whatever the recording's length or band).
 """
 
 import dataclasses

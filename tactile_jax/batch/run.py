@@ -5,7 +5,7 @@
 ``signals`` of shape (n, 4, N)) and writes one data-contract row per record
 to ``out`` (.json, .csv or .parquet). Records are fitted in chunks of
 ``chunk_size`` by the joint pipeline that ``fit`` runs on one record
-(``joint.core``, vmapped; the last chunk is padded with copies that are
+(``inference.core``, vmapped; the last chunk is padded with copies that are
 dropped). Its inputs have one shape whatever the record's length, segment
 length or band, so a batch compiles it once per chunk size, not per file.
 

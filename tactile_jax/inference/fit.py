@@ -1,8 +1,8 @@
 """Joint estimation of slip velocity, contact radius, gains and texture spectrum, with error bars.
 
 ``fit_recording`` (probe signals) and ``fit_spectra`` (recorded spectra) run the
-compiled joint pipeline of ``joint`` on one record: grouped periodograms on a
-fixed grid (``joint.segments``), the usable band and closed-form starts, the 2-D
+compiled joint pipeline of ``inference`` on one record: grouped periodograms on a
+fixed grid (``spectral.segments``), the usable band and closed-form starts, the 2-D
 joint model of both pairs and their cross-pair chain fitted by fixed-iteration
 Levenberg-Marquardt from several starts, Laplace errors scaled by the
 delete-one-group jackknife. ``batch`` runs the same program on chunks. On top,
@@ -190,7 +190,7 @@ def fit_spectra(data, options: FitOptions = FitOptions()) -> FitResult:
 
 def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_radius=None,
                has_xy: bool = True) -> FitResult:
-    """The joint pipeline on one ``joint.core.Record`` with what only a single record needs layered on
+    """The joint pipeline on one ``inference.core.Record`` with what only a single record needs layered on
     top (see the module). Never raises for a fit that fails: see ``status``."""
     try:
         options = model_select.options_for(options)
@@ -214,7 +214,7 @@ def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_rad
 
 
 class _Refitter(NamedTuple):
-    """Refits of one record through the pipeline's program (``joint.run.refit``)."""
+    """Refits of one record through the pipeline's program (``inference.run.refit``)."""
 
     rec: Record
     settings: Settings

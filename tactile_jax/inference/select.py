@@ -131,7 +131,7 @@ def _slip_mask_theta(theta, free):
 
 
 def select(summary, free, refit, options, *, bin_factor: float = 1.0) -> Selection:
-    """Apply ``options.model`` ("slip" or "auto") to the base fit ``summary`` (``joint.core.Summary``).
+    """Apply ``options.model`` ("slip" or "auto") to the base fit ``summary`` (``inference.core.Summary``).
 
     refit(theta, free) -> (fit, chi2): the joint solve from ``theta`` over ``free`` (``fit.theta``
     its parameters). "slip" refits with a held at ``A_NEGLIGIBLE``; "auto" fits slip, +gain and

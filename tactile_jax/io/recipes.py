@@ -3,7 +3,7 @@
 Schema (shared with the paper-experiment recipes)::
 
     description = "what scene this is for"
-    [fit]        # FitOptions fields, plus model = "auto" or a model name (model_select.MODELS)
+    [fit]        # FitOptions fields, plus model = "auto" or a model name (inference.select.MODELS)
     method = "welch"
     velocity = [0.047, 0.0]      # m/s, known from the arm: held fixed
     model = "auto"

@@ -7,7 +7,7 @@ pairs were independent counts those modes twice and leaves out how the two
 pairs share them, which depends on (vx, vy, a).
 
 The four channels' likelihood factors exactly as p(x1, x2) p(y1 | x1, x2)
-p(y2 | x1, x2, y1). The joint fit (``joint.residuals``) fits the x pair and, per bin, a
+p(y2 | x1, x2, y1). The joint fit (``inference.residuals``) fits the x pair and, per bin, a
 regression of each y channel on the channels before it (Bendat & Piersol's
 conditioned spectra, ch. 7):
 
@@ -29,7 +29,7 @@ nothing, beta is 0 and S_t.u the channel's own PSD: the block reduces to the
 y pair's PSD that it replaces.
 
 This module holds the measured side (jnp, any leading axes); the model side is
-``joint.model``'s.
+``inference.forward``'s.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def chain_matrix(psd, csd, xy):
 def _solve_small(a, b):
     """a^-1 b for (..., n, n) a and (..., n) b with small static n, by Gauss-Jordan elimination unrolled
     (no pivoting: a is Hermitian positive definite here). Written out rather than ``jnp.linalg.solve``:
-    batched LAPACK calls inside the vmapped, looped fit of ``joint.core`` stalled XLA's CPU runtime
+    batched LAPACK calls inside the vmapped, looped fit of ``inference.core`` stalled XLA's CPU runtime
     (8 records x 3 starts never finished), and unrolled elimination of a 2 x 2 or 3 x 3 is cheaper."""
     n = a.shape[-1]
     a = [[a[..., i, j] for j in range(n)] for i in range(n)]
@@ -97,7 +97,7 @@ def _solve_small(a, b):
 
 def regression(s_uu, s_ut, s_tt):
     """beta = S_uu^-1 S_u,t (..., n) and the residual PSD S_t.u = S_tt - S_u,t^H beta (...), real: the
-    chain's step for the measured matrices here and the model's (``joint.model``)."""
+    chain's step for the measured matrices here and the model's (``inference.forward``)."""
     beta = _solve_small(s_uu, s_ut)
     return beta, jnp.real(s_tt - jnp.sum(jnp.conj(s_ut) * beta, axis=-1))
 

@@ -151,7 +151,7 @@ def _ratio_limits(lr, err, measured, model, shown):
 def plot_fit(result, out_dir) -> list[Path]:
     """Fig. 7-style figure of a joint fit: measured and fitted log|P2/P1| of the x and y pairs.
 
-    result: a ``fit.FitResult``. out_dir: folder for ``fit_<file stem>_<index>.png``.
+    result: a ``inference.result.FitResult``. out_dir: folder for ``fit_<file stem>_<index>.png``.
     Each panel: the measured log amplitude ratio against omega (rad/s) with its
     one-sigma error bars in the bins the fit used; other bins carrying a measured
     value in grey; the fitted model curve with its +/- 1 sigma band (Laplace
@@ -214,7 +214,7 @@ def plot_fit(result, out_dir) -> list[Path]:
 def plot_posterior_corner(result, out_dir, *, truth: dict | None = None) -> list[Path]:
     """Corner plot (ArviZ ``plot_pair``) of the posterior of |vx|, |vy| (cm/s) and a (mm): ``corner_<file stem>_<index>.png``.
 
-    result: a ``fit.FitResult`` with ``posterior`` set (``posterior.run_emcee``); the sampled
+    result: a ``inference.result.FitResult`` with ``posterior`` set (``posterior.run_emcee``); the sampled
     ones of vx, vy and a are drawn (fixed ones are not sampled). Panels: 2-D KDE contours of
     each pair below the diagonal, 1-D KDE marginals on it. truth: a simulator's truth dict
     (``vx``, ``vy``, ``a`` in SI units), drawn as reference points (and lines on the
