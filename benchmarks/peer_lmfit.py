@@ -27,7 +27,7 @@ _SQRT_3_2 = np.sqrt(1.5)
 
 
 def log_g(alpha, depth, a):
-    """log G(alpha; d, a) of the Gaussian window (DESIGN.md), numpy; alpha rad/m, d and a in m."""
+    """log G(alpha; d, a) of the Gaussian window (docs/model.md), numpy; alpha rad/m, d and a in m."""
     alpha = np.abs(alpha)
     u = alpha * a / _SQRT_6
     c = _SQRT_3_2 * depth / a

@@ -5,7 +5,7 @@ log amplitude ratio log(|S12| / S11) from Welch spectra (scipy.signal.welch /
 csd, Hann, 50 % overlap, the same segment length), bins kept where the
 coherence exceeds the 1 % zero-coherence level and 0.5 and the Bendat &
 Piersol error is below 0.5, then ``curve_fit`` of the exact R curve
-(DESIGN.md, Eq. 23 in log space) for log|v|, log a, weighted by that error,
+(docs/model.md, Eq. 23 in log space) for log|v|, log a, weighted by that error,
 started from the Eq. 6 straight line. No prewhitening, no spectral-window
 model (a user would not write them). Used by ``throughput.py`` as the
 reference; run alone it fits one recording file:

@@ -407,7 +407,7 @@ def fig6(out: Path, quick: bool) -> list[Row]:
             "figure only", f"{_pct(sm)} / {_pct(sx)}; {sn} of {len(results)} scenes off by more than |v|", "n/a",
             "each pair alone: a pair across the slip hears only window leakage, whose flat ratio reads as a huge "
             "speed (or none); with a 3 mm window the line over-estimates, and under oblique slip the smaller "
-            "component is pulled toward the larger (DESIGN.md, 2-D slip)"),
+            "component is pulled toward the larger (docs/model.md, 2-D slip)"),
     ]
 
 
@@ -503,7 +503,7 @@ def fig7(out: Path, quick: bool) -> list[Row]:
             reason = ("control: the scene has the model's own (Gaussian) window, so the fit must return its a"
                       if window == "gaussian" else
                       "Hertz contact, Gaussian model: at the net's fundamental alpha a = 14-28 the deep probe hears "
-                      "mostly the contact edge's low-k leakage (log R flattens, DESIGN.md), and the crossing wires add "
+                      "mostly the contact edge's low-k leakage (log R flattens, docs/model.md), and the crossing wires add "
                       "ky modes; the Gaussian curve reads that as a small radius")
             DETAILS.setdefault("fig7", []).append({"window": window, "depth": depth, "a_true": a_true, "a": fit.a,
                                                    "a_err": fit.a_err, "lines_omega": pts.omega,

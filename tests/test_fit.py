@@ -19,7 +19,7 @@ from tactile_jax.inference import run
 from tactile_jax.inference.core import Settings
 from tactile_jax.io.recording import Recording
 from tactile_jax.simulation.scene import Scene, simulate
-from tactile_jax.simulation.texture import Grating, RandomTexture
+from tactile_jax.simulation.texture import DirectionalTexture, Grating, RandomTexture
 
 
 def _scene(vx, vy, a, seed, snr=50.0, duration=16.0):
@@ -44,7 +44,7 @@ def test_oblique_slip_small_contact_recovered(oblique):
     assert abs(res.a - scene.a) < 0.05 * scene.a and abs(res.a - scene.a) < 4 * res.a_err
     assert res.contact_depth == pytest.approx(res.a ** 2 / 0.03)
     assert res.contact_depth_err == pytest.approx(2 * res.a * res.a_err / 0.03)
-    assert res.model == "window" and res.window == "gaussian"
+    assert res.model == "window" and res.window == "gaussian" and res.texture == "isotropic"
     # texture cross-sections with error bars, on k = omega / |v|
     assert res.texture_x is not None and np.all(np.isfinite(res.texture_x.log_power_err))
     assert np.all(res.texture_x.power > 0) and np.all(np.diff(res.texture_x.k) > 0)
@@ -169,3 +169,22 @@ def test_the_slip_model_holds_a_window_negligible(oblique):
     res = fit_recording(rec, FitOptions(model="slip"))
     assert res.model == "slip" and res.a is None and res.a_lower == pytest.approx(0.1)
     assert "held negligible" in res.message
+
+
+def test_directional_texture_is_modelled_and_reported():
+    """Power 3:1 along 120 deg: the isotropic model puts vx about 6 sigma off with status ok; the directional
+    model is chosen per record, its lobe found, and the speeds covered by their error bars."""
+    scene = Scene(texture=DirectionalTexture(anisotropy=3.0, angle=np.radians(120.0)), velocity=(0.0371, 0.0217),
+                  contact_radius=1.2e-3, snr_db=45.0, seed=305, duration=16.0)
+    rec = simulate(scene)
+    iso = fit_recording(rec, FitOptions(texture="isotropic"))
+    res = fit_recording(rec)
+    assert res.status == "ok" and res.texture == "directional" and res.texture_margin > 0, res.message
+    assert "directional texture" in res.message and iso.texture == "isotropic"
+    assert abs(iso.vx - scene.velocity[0]) > 4 * iso.vx_err              # what the isotropic model reports
+    p, q = res.summary.theta[7:9]
+    assert abs((0.5 * np.degrees(np.arctan2(q, p)) - 120.0 + 90.0) % 180.0 - 90.0) < 20.0
+    speed = float(np.hypot(*scene.velocity))
+    for name, true in (("vx", scene.velocity[0]), ("vy", scene.velocity[1])):
+        assert abs(res[name].value - true) < min(3 * res[name].err, 0.03 * speed), name
+    assert res.to_record()["texture"] == "directional"

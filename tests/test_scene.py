@@ -235,7 +235,7 @@ def test_oblique_random_slip_pairs_see_their_components():
     rec = simulate(Scene(velocity=(vx, vy), contact_radius=3e-3, fs=250.0, duration=8.0, snr_db=None, seed=1))
     sx = _pair_speed(rec.signals[0], rec.signals[1], rec.fs, vx)
     sy = _pair_speed(rec.signals[2], rec.signals[3], rec.fs, vy)
-    # the x pair hears mostly vx (pulled toward vy by the finite window, DESIGN.md), not |v|
+    # the x pair hears mostly vx (pulled toward vy by the finite window, docs/model.md), not |v|
     assert abs(sx / vx - 1) < 0.2 and sx < 0.75 * v
     assert abs(sy / vy - 1) < 0.1
 

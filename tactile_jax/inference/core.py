@@ -41,7 +41,7 @@ from ..model.r_curve import log_g
 from ..spectral import band as band_mod
 from ..spectral.band import MIN_BINS as MIN_BINS
 from .data import N_FIT, JointData, grid_offsets, measure
-from .forward import N_PHYS, ModelSpectra, spectra_at_bins
+from .forward import INDEX, N_PHYS, ModelSpectra, spectra_at_bins
 from .residuals import blocks, n_prior, residuals_and_model
 from .solve import levenberg_marquardt
 from ..spectral.segments import KERNEL_OFFSETS, Segments
@@ -72,7 +72,7 @@ class Settings(NamedTuple):
     noise_floor, fit_gain: fit a shallow white-noise floor / the pairs' gain ratios.
     conditioned: fit the conditioned deep PSDs. chain: blocks of the y pair conditioned on the x pair
     (0: none, 1: y1 on (x1, x2) in place of y1's PSD, 2: also y2 on (x1, x2, y1) in place of the y
-    ratio and S22.1).
+    ratio and S22.1). directional: fit the texture's angular factor (p, q) (held at 0 otherwise).
     """
 
     min_snr: float = 1.0
@@ -85,6 +85,7 @@ class Settings(NamedTuple):
     fit_gain: bool = False
     conditioned: bool = True
     chain: int = 2
+    directional: bool = False
 
 
 class Record(NamedTuple):
@@ -251,17 +252,26 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     floors = band_mod.noise_floors(spec)
     noise = jnp.where(settings.noise_floor, floors.at[:, 0].set(-700.0), floors)
     noise0 = jnp.where(settings.noise_floor, jnp.log(jnp.mean(jnp.exp(floors[:, 0]))), -700.0)
-    theta0 = jnp.concatenate([jnp.log(v0), jnp.stack([jnp.log(a0), log_gains[0], log_gains[1], 0.0, noise0]),
-                              log_phi0])
+    i = INDEX
+    theta0 = jnp.zeros(N_PHYS + N_KNOTS, log_phi0.dtype)
+    theta0 = theta0.at[jnp.array([i["log_vx"], i["log_vy"]])].set(jnp.log(v0)).at[i["log_a"]].set(jnp.log(a0))
+    theta0 = theta0.at[i["log_gx"]].set(log_gains[0]).at[i["log_gy"]].set(log_gains[1])
+    theta0 = theta0.at[i["log_noise"]].set(noise0).at[N_PHYS:].set(log_phi0)
     p = theta0.shape[0]
     idx = jnp.arange(p)
+    speed = (idx == i["log_vx"]) | (idx == i["log_vy"])
+    gain = (idx == i["log_gx"]) | (idx == i["log_gy"])
+    aniso = (idx == i["aniso_p"]) | (idx == i["aniso_q"])
     free = jnp.ones(p, bool)
-    free = jnp.where(idx < 2, ~known, free)
-    free = jnp.where((idx == 3) | (idx == 4), settings.fit_gain, free)
-    free = jnp.where(idx == 6, settings.noise_floor, free)
-    free = jnp.where(idx == 5, band_w[1].any(), free)              # nothing measures the y level without a band
-    prior_inv_sd = jnp.where(idx < 3, 1.0 / 3.0, jnp.where((idx == 3) | (idx == 4), 0.5, 0.0))
-    prior_inv_sd = jnp.where(free, prior_inv_sd, 0.0)
+    free = jnp.where(speed, ~known, free)
+    free = jnp.where(gain, settings.fit_gain, free)
+    free = jnp.where(idx == i["log_noise"], settings.noise_floor, free)
+    free = jnp.where(aniso, settings.directional, free)
+    free = jnp.where(idx == i["log_ay"], band_w[1].any(), free)    # nothing measures the y level without a band
+    # weak priors: log speeds and log a (sd 3), log gains (sd 2), the angular factor (sd 2)
+    prior_inv_sd = jnp.where(speed | (idx == i["log_a"]), 1.0 / 3.0, jnp.where(gain | aniso, 0.5, 0.0))
+    # a fixed parameter's prior residual is constant; the angular factor's prior stays on for a refit that frees it
+    prior_inv_sd = jnp.where(free | aniso, prior_inv_sd, 0.0)
     data = JointData(
         meas=meas, omega=om, grid_abs=jnp.abs(d_omega * (i0 + jnp.asarray(grid_offsets()))),
         log_kernel=data_kernel,
@@ -275,9 +285,10 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     # speed starts: as found, and each axis in turn as the major one at its own pair's speed, the other at
     # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it)
     alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(0.15 * v0[m])) for m in (0, 1)]
-    starts = jnp.stack([theta0[:2]] + [jnp.where(known, theta0[:2], s) for s in alt])
-    stage1 = free & ((idx >= N_PHYS) | (idx == 5))          # the texture and the y level, physics held
-    return Prepared(data, jax.vmap(lambda lv: theta0.at[:2].set(lv))(starts), free, stage1, b)
+    iv = jnp.array([i["log_vx"], i["log_vy"]])
+    starts = jnp.stack([theta0[iv]] + [jnp.where(known, theta0[iv], s) for s in alt])
+    stage1 = free & ((idx >= N_PHYS) | (idx == i["log_ay"]))          # the texture and the y level, physics held
+    return Prepared(data, jax.vmap(lambda lv: theta0.at[iv].set(lv))(starts), free, stage1, b)
 
 
 def statistics(theta, r, jac, free):
@@ -385,11 +396,12 @@ def texture_sections(theta, cov, jac, model: ModelSpectra, data: JointData):
     error (the spectral noise and the parameters' covariance). Meaningful on ``data.mask_s11``."""
     n_fit = data.omega.shape[0]
     p = theta.shape[0]
-    v = jnp.exp(theta[:2])
+    v = jnp.exp(theta[jnp.array([INDEX['log_vx'], INDEX['log_vy']])])
     k = data.omega[None, :] / v[:, None]
     log_phi = lambda th: log_phi_at(jnp.log(k), data.log_k_knots, th[N_PHYS:])      # noqa: E731
     # d log Phi(omega / v) / d theta, less d log S11 / d theta (from the Jacobian's first 2 L rows)
-    d = jax.jacfwd(lambda th: log_phi_at(jnp.log(data.omega[None, :] / jnp.exp(th[:2])[:, None]),
+    iv = jnp.array([INDEX["log_vx"], INDEX["log_vy"]])
+    d = jax.jacfwd(lambda th: log_phi_at(jnp.log(data.omega[None, :] / jnp.exp(th[iv])[:, None]),
                                          data.log_k_knots, th[N_PHYS:]))(theta)
     d = d + jac[:2 * n_fit].reshape(2, n_fit, p) / data.s11_weight
     var = jnp.einsum("plk,km,plm->pl", d, cov, d)

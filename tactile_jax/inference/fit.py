@@ -37,7 +37,7 @@ from .problem import FitProblem
 from .residuals import residuals as joint_residuals
 from .result import A_BOUNDS, V_BOUNDS, FitResult, result_from_summary, set_contact_depth, texture_sections
 
-__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "settle", "NO_XY_MESSAGE"]
+__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "refine", "Refined", "settle", "NO_XY_MESSAGE"]
 
 #: more solves (``core.ITERATIONS[2]`` iterations each) for a fit that has not settled
 _MORE_SOLVES = 3
@@ -223,13 +223,38 @@ class _Refitter(NamedTuple):
         return run.refit(self.rec, self.settings, theta, free)
 
 
-def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
-    warnings = []
+class Refined(NamedTuple):
+    """``refine``'s outcome: the summary, the texture model chosen, its BIC margin and what to say of it
+    (for the message), and warnings (more solves)."""
+
+    summary: Summary
+    texture: str
+    texture_margin: float | None
+    texture_note: str
+    warnings: tuple
+
+
+def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> Refined:
+    """What ``fit`` and ``batch`` both do after the pipeline's first solve, through the same program: more
+    solves where the fit has not settled, then the texture model (``select.choose_texture``) unless
+    ``options.texture`` forces one."""
+    refit = _Refitter(rec, settings)
+    notes = []
     if int(s.status) == FIT_CODES.index(Status.NOT_CONVERGED):
         s, more = _continue(refit, s)
-        warnings.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
-                        if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED) else
-                        f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
+        notes.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
+                     if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED) else
+                     f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
+    if options.texture is not None:
+        return Refined(s, model_select.texture_name(s.free), None, "", tuple(notes))
+    s, texture, margin, note = model_select.choose_texture(s, refit, bin_factor=float(rec.seg.bin_factor))
+    return Refined(s, texture, margin, note, tuple(notes))
+
+
+def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
+    refined = refine(refit.rec, refit.settings, s, options)
+    s = refined.summary
+    warnings = list(refined.warnings)
     chosen, window_weak, note = _select(refit, s, options)
     margin = None
     if chosen is not None:
@@ -238,6 +263,8 @@ def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius
     res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
                               window_weak=window_weak, segments=refit.rec.seg)
     res.model_margin = margin
+    res.texture, res.texture_margin = model_select.texture_name(s.free), refined.texture_margin
+    res.message = "; ".join(m for m in (res.message, refined.texture_note) if m)
     add_profiles(res, s, refit, profile_minor=options.profile_minor)
     if note and note.startswith("model "):
         res.message = "; ".join(m for m in (note, res.message) if m)

@@ -3,8 +3,9 @@
 Parameters (a flat vector, ``PARAMS`` order): log|vx|, log|vy| (m/s), log a
 (m), log gx, log gy (deep/shallow amplitude gain ratios of the pairs), log ay
 (power level of the y pair's shallow probe relative to x1), log noise (a
-fitted shallow white-noise floor, units^2/Hz) and log Phi at the texture's
-knots (``spline``).
+fitted shallow white-noise floor, units^2/Hz), the directional texture's
+angular factor (p, q) (``model.lines.log_angular``; 0, 0: isotropic) and log
+Phi at the texture's knots (``model.spline``).
 
 The densities of the ten entries of the spectral matrix (``lines``) are
 computed on the integer-bin grid around the window, interpolated to half
@@ -30,11 +31,13 @@ from ..model import cross_pair
 from .data import JointData
 from ..model.lines import ENTRIES, log_matrix
 
-__all__ = ["PARAMS", "N_PHYS", "param_names", "ModelSpectra", "spectra_at_bins", "half_bin_index"]
+__all__ = ["PARAMS", "N_PHYS", "INDEX", "param_names", "ModelSpectra", "spectra_at_bins", "half_bin_index"]
 
 #: names of the leading parameters; ``log_phi_j`` follow for the texture knots
-PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise")
+PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise", "aniso_p", "aniso_q")
 N_PHYS = len(PARAMS)
+#: each named parameter's position in theta
+INDEX = {name: i for i, name in enumerate(PARAMS)}
 
 
 def param_names(n_knots: int) -> tuple[str, ...]:
@@ -75,11 +78,13 @@ def _window_average(half, white_half, idx, log_kernel):
 
 def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
     """``ModelSpectra`` of the parameters ``theta`` (P,) for ``data``."""
-    vx, vy, a = jnp.exp(theta[0]), jnp.exp(theta[1]), jnp.exp(theta[2])
-    log_phi = theta[N_PHYS:]
-    dens = log_matrix(jnp.stack([vx, vy, a]), log_phi, data.grid_abs, data.depths, data.log_k_knots)    # (10, F)
+    i = INDEX
+    phys = jnp.exp(jnp.stack([theta[i["log_vx"]], theta[i["log_vy"]], theta[i["log_a"]]]))
+    aniso = jnp.stack([theta[i["aniso_p"]], theta[i["aniso_q"]]])
+    dens = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots)    # (10, F)
     # gains and levels: x2 has gx, y1 the level ay (power), y2 both (amplitudes: half the power's log)
-    amp = jnp.stack([0.0, theta[3], 0.5 * theta[5], 0.5 * theta[5] + theta[4]])
+    level, gx, gy = theta[i["log_ay"]], theta[i["log_gx"]], theta[i["log_gy"]]
+    amp = jnp.stack([0.0, gx, 0.5 * level, 0.5 * level + gy])
     dens = dens + jnp.stack([amp[i] + amp[j] for i, j in ENTRIES])[:, None]
     half = _to_half_bins(dens)                                                        # (10, H)
     n_fit = data.omega.shape[0]
@@ -87,7 +92,8 @@ def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
     white = jnp.repeat(data.white_half, 3, axis=0)                                   # per pair entry
     auto = _window_average(half[:6], white, idx, data.log_kernel) - jnp.repeat(data.white_bin, 3, axis=0)
     pair = auto.reshape(2, 3, n_fit)                                                 # [pair][11, 12, 22]
-    noise = jnp.maximum(jnp.stack([jnp.full(2, theta[6]), jnp.full(2, -700.0)], -1), data.log_noise)  # (2, 2)
+    noise = jnp.maximum(jnp.stack([jnp.full(2, theta[i["log_noise"]]), jnp.full(2, -700.0)], -1),
+                        data.log_noise)                                                  # (2, 2)
     b11 = jnp.logaddexp(pair[:, 0], noise[:, :1])
     b12 = pair[:, 1]
     b22 = jnp.logaddexp(pair[:, 2], noise[:, 1:])

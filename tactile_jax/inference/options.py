@@ -38,6 +38,10 @@ class FitOptions:
     profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
         profile-likelihood interval (``FitResult.vx_lo`` ...).
     window: "gaussian" (the joint model's window).
+    texture: the texture model: None (default: isotropic, or directional where the isotropic fit
+        does not describe the spectra and the directional one does, chosen per record and reported
+        in ``FitResult.texture``), "isotropic" (Phi(|k|)) or "directional" (Phi(|k|) times a
+        cos 2(theta - theta0) lobe, ``model.lines``).
     model: the scene model (``select.MODELS``): None (default: slip and contact window,
         plus gains / noise floor as ``fit_gain`` / ``noise_floor`` say; a window the data do
         not need is reported as a lower bound on a), "slip" (window negligible), "window",
@@ -65,6 +69,7 @@ class FitOptions:
     cross_pairs: int | None = None
     profile_minor: bool = True
     window: str = "gaussian"
+    texture: str | None = None
     model: str | None = None
     solver: str = "optimistix"
 
@@ -77,7 +82,8 @@ def settings_of(options: FitOptions, *, has_xy: bool = True) -> Settings:
                     fmax=np.inf if options.fmax is None else float(options.fmax),
                     leakage_db=float(options.leakage_db), smoothness=float(options.smoothness),
                     noise_floor=bool(options.noise_floor), fit_gain=bool(options.fit_gain),
-                    conditioned=bool(options.conditioned), chain=chain if has_xy else 0)
+                    conditioned=bool(options.conditioned), chain=chain if has_xy else 0,
+                    directional=options.texture == "directional")
 
 
 def options_from_file(options: FitOptions, rec) -> FitOptions:

@@ -115,6 +115,7 @@ class FitResult:
     model: str = "joint-2d"
     window: str = "gaussian"
     texture: str = "isotropic"
+    texture_margin: float | None = None
     converged: bool = False
     model_margin: float | None = None
     status: Status = Status.OK
@@ -177,7 +178,7 @@ class FitResult:
                 column = quantity if field == "value" else (f"{quantity}_err" if field == "err"
                                                             else f"{quantity}_{field}")
                 row[column] = plain(getattr(self.estimates[quantity], field))
-        for extra in ("texture", "redchi", "n_bins", "cond", "aic", "bic", "solver", "precision", "model_margin",
+        for extra in ("texture", "texture_margin", "redchi", "n_bins", "cond", "aic", "bic", "solver", "precision", "model_margin",
                       "error_scale", "error_method", "cross_pairs"):
             row[extra] = plain(getattr(self, extra))
         if self.posterior is not None:

@@ -14,7 +14,7 @@ The models differ only in which entries of the joint model's parameter vector
     window+gain+noise
     hertz          each pair alone with the Hertz-window R curve (Eq. 12,
                    ``pair_fit``): the Hertz window is not separable, so the
-                   joint 2-D model has no Hertz form (DESIGN.md); forced only
+                   joint 2-D model has no Hertz form (docs/model.md); forced only
 
 A velocity known from the arm (paper section 4.3, ``FitOptions.velocity``)
 is held fixed in every model and the name gets ``+v_known``.
@@ -52,6 +52,9 @@ __all__ = [
     "model_name",
     "options_for",
     "select",
+    "texture_name",
+    "choose_texture",
+    "TEXTURES",
     "window_needed",
 ]
 
@@ -61,6 +64,9 @@ A_NEGLIGIBLE = 0.1
 
 _I = {name: i for i, name in enumerate(PARAMS)}
 _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_noise"]
+_I_ANISO = (_I["aniso_p"], _I["aniso_q"])
+#: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
+TEXTURES = ("isotropic", "directional")
 #: ``window_needed`` tests a contact radius measured to worse than this relative error
 WINDOW_TEST_REL_ERR = 0.05
 #: chi2 rise (in units of the covariance scale) below which a -> infinity is not rejected: one-sided 95 %
@@ -231,7 +237,7 @@ def fit_hertz(spec, depths, options, curvature_radius=None):
     gains = known_gains(options)
     res = FitResult(model="hertz", window="hertz", solver=options.solver)
     # the curve holds for slip along one axis: the pair with the most shallow power in its band is that
-    # axis; the other pair hears only window leakage, whose ratio says nothing about its speed (DESIGN.md)
+    # axis; the other pair hears only window leakage, whose ratio says nothing about its speed (docs/model.md)
     psd = np.asarray(spec.psd)
     power = [float(np.sum(psd[2 * p][band[p]])) if band[p].sum() >= 5 else -1.0 for p in range(2)]
     major = int(np.argmax(power))
@@ -268,3 +274,41 @@ def fit_hertz(spec, depths, options, curvature_radius=None):
                    "assumed; the joint 2-D model has the separable Gaussian window only)")
     annotate(res)
     return res
+
+
+def texture_name(free) -> str:
+    """The texture model a free mask fits: "directional" where the angular factor is free."""
+    return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
+
+
+def choose_texture(summary, refit, *, bin_factor: float = 1.0):
+    """The texture model of one record: the isotropic fit ``summary`` against the directional one.
+
+    refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
+    The directional fit starts at the isotropic optimum with the angular factor (p, q) freed; it is
+    kept where it lowers ``information_criterion`` (the quasi-likelihood scale is the directional
+    fit's reduced chi-square, so that a misfit it does not remove is not read as evidence).
+    Returns (summary, name, margin in BIC units (the loser's minus the winner's), note).
+    """
+    if int(summary.status) not in (0, 2, 3):                   # no band or failed: nothing to compare
+        return summary, "isotropic", None, ""
+    free = np.asarray(summary.free, bool)
+    fr = free.copy()
+    fr[list(_I_ANISO)] = True
+    directional = refit(np.asarray(summary.theta), fr)
+    n_data = float(summary.n_data)
+    if not np.isfinite(float(directional.chi2)):
+        return summary, "isotropic", None, "the directional texture model did not fit"
+    scale = float(directional.chi2) / max(n_data - fr.sum(), 1.0)
+    bic_iso = information_criterion(float(summary.chi2), free.sum(), n_data, bin_factor=bin_factor, scale=scale,
+                                    kind="aic")
+    bic_dir = information_criterion(float(directional.chi2), fr.sum(), n_data, bin_factor=bin_factor, scale=scale,
+                                    kind="aic")
+    if bic_dir < bic_iso:
+        p, q = (float(directional.theta[i]) for i in _I_ANISO)
+        contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
+        angle = 0.5 * np.degrees(np.arctan2(q, p)) % 180.0
+        note = (f"directional texture (BIC margin {bic_iso - bic_dir:.1f} over isotropic): power along "
+                f"{angle:.0f} deg, anisotropy {(1 + contrast) / (1 - contrast):.2f}")
+        return directional, "directional", bic_iso - bic_dir, note
+    return summary, "isotropic", bic_dir - bic_iso, ""

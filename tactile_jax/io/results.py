@@ -1,7 +1,7 @@
 """Result tables of ``tactile-jax fit`` / ``batch``: JSON, CSV or Parquet, one row per record.
 
 The format follows the suffix of the path. Rows are flat dicts (``FitResult.to_record()``);
-the data contract's fields (``fit.RESULT_FIELDS``, DESIGN.md) come first, extra keys after
+the data contract's fields (``inference.result.RESULT_FIELDS``, docs/data-format.md) come first, extra keys after
 them in first-seen order. Writes are atomic: a temporary file in the target's folder is
 renamed over the target, so a failed write leaves any existing file untouched.
 """

@@ -1,7 +1,12 @@
 """The 4 x 4 spectral matrix of the probes as line integrals over the k-plane, with a cheap exact Jacobian.
 
-A texture of isotropic power spectrum Phi(|k|) slides at (vx, vy); the mode k
-rings at omega = k . v. Channel x(d) weighs it by G(kx; d, a) L(ky), channel
+A texture of power spectrum Phi(k) = Phi(|k|) A(theta) slides at (vx, vy); the
+mode k rings at omega = k . v. The angular factor of a directional texture is
+
+    A(theta) = 1 + (p cos 2 theta + q sin 2 theta) / sqrt(1 + p^2 + q^2),
+
+a cos 2(theta - theta0) lobe of contrast c = sqrt(p^2 + q^2) / sqrt(1 + p^2 + q^2) < 1
+(anisotropy (1 + c) / (1 - c)): positive for every (p, q), smooth, and 1 at p = q = 0. Channel x(d) weighs it by G(kx; d, a) L(ky), channel
 y(d) by G(ky; d, a) L(kx), with G the normalised window-depth response
 (``r_curve.log_g``) and L(q) = exp(-a^2 q^2 / 6) the Gaussian window's
 spectrum across the probe. Every entry of the spectral matrix of
@@ -22,8 +27,9 @@ either pair's window factor ends.
 depend on (vx, vy, a) only, so three forward tangents go through them (one
 ``jax.jvp`` each: a ``jax.linearize`` mapped over them ran 2x slower inside the
 Jacobian); the texture knots enter through the spline's basis at the
-nodes, a fixed linear map. A Jacobian over all parameters then costs about
-four evaluations instead of one per parameter.
+nodes, a fixed linear map, and (p, q) through A's closed-form derivatives. A
+Jacobian over all parameters then costs about four evaluations instead of one
+per parameter.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ from .._quadrature import gauss_legendre
 from .r_curve import log_g
 from .spline import log_phi_at
 
-__all__ = ["ENTRIES", "N_NODES", "log_matrix"]
+__all__ = ["ENTRIES", "N_NODES", "log_matrix", "log_angular"]
 
 #: (channel, channel) of each entry of ``log_matrix``; channels (x1, x2, y1, y2)
 ENTRIES = ((0, 0), (0, 1), (1, 1), (2, 2), (2, 3), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3))
@@ -50,7 +56,8 @@ def _nodes(p, omega, d1, d2):
     """Nodes of the line k . v = omega for (vx, vy, a) = p at omega (F,) >= 0, rad/s.
 
     Returns log|k| (F, N), the log quadrature weights including 1 / |v_u| (F, N; -2e4 where a
-    panel is empty) and the four channels' log factors (4, F, N).
+    panel is empty), the four channels' log factors (4, F, N) and cos 2 theta, sin 2 theta of the
+    nodes' direction (F, N) each.
     """
     vx, vy, a = p[0], p[1], p[2]
     k_g = _LOG_EDGE / (2.0 * d1)
@@ -83,54 +90,76 @@ def _nodes(p, omega, d1, d2):
     kx = jnp.where(by_ky, solved, u)
     ky = jnp.where(by_ky, u, solved)
     log_w = jnp.where(wt <= 0, -2e4, jnp.log(jnp.clip(wt, tiny(wt), None)) - jnp.log(v_u))
-    log_k = 0.5 * jnp.log(jnp.square(kx) + jnp.square(ky) + tiny(kx))
+    k2 = jnp.square(kx) + jnp.square(ky)
+    log_k = 0.5 * jnp.log(k2 + tiny(kx))
+    # the direction of |k| < 1 rad/m (wavelengths of metres) is irrelevant: the floor keeps its tangents finite
+    k2_floor = jnp.maximum(k2, 1.0)
+    cos2, sin2 = (jnp.square(kx) - jnp.square(ky)) / k2_floor, 2.0 * kx * ky / k2_floor
     lx, ly = -jnp.square(a * kx) / 6.0, -jnp.square(a * ky) / 6.0
     # one log_g over the four channels (written four times it compiles four times)
     k_s = jnp.stack([kx, kx, ky, ky])
     depth = jnp.stack([d1, d2, d1, d2])[:, None, None]
-    return log_k, log_w, log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx])
+    return log_k, log_w, log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx]), cos2, sin2
 
 
-def _terms(log_k, log_w, ch, log_k_knots, log_phi):
+def log_angular(cos2, sin2, aniso):
+    """log A(theta) of the module at directions given by cos 2 theta, sin 2 theta; aniso = (p, q).
+
+    Returns log A and its derivatives with respect to cos 2 theta, sin 2 theta, p and q (same shape)."""
+    p, q = aniso[0], aniso[1]
+    r = jnp.sqrt(1.0 + p * p + q * q)
+    lobe = (p * cos2 + q * sin2) / r
+    inv = 1.0 / (1.0 + lobe)
+    d_p = (cos2 / r - lobe * p / (r * r)) * inv
+    d_q = (sin2 / r - lobe * q / (r * r)) * inv
+    return jnp.log1p(lobe), p / r * inv, q / r * inv, d_p, d_q
+
+
+def _terms(log_k, log_w, ch, log_ang, log_k_knots, log_phi):
     """(10, F, N) log integrands of the entries at the nodes."""
-    base = log_phi_at(log_k, log_k_knots, log_phi) + log_w
+    base = log_phi_at(log_k, log_k_knots, log_phi) + log_ang + log_w
     return jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES])
 
 
 @jax.custom_jvp
-def log_matrix(p, log_phi, omega, depths, log_k_knots):
+def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots):
     """log of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s: (10, F).
 
     p: (vx, vy, a) in m/s, m/s, m (positive). log_phi: (n,) log texture spectrum at the knots
-    ``log_k_knots`` (log rad/m). depths: (2,) d1, d2 in m. No gains, levels or noise.
+    ``log_k_knots`` (log rad/m). aniso: (2,) the angular factor's (p, q) (0, 0: isotropic).
+    depths: (2,) d1, d2 in m. No gains, levels or noise.
     """
-    log_k, log_w, ch = _nodes(p, omega, depths[0], depths[1])
-    return jnp.maximum(logsumexp(_terms(log_k, log_w, ch, log_k_knots, log_phi), axis=-1), -1e4)
+    log_k, log_w, ch, cos2, sin2 = _nodes(p, omega, depths[0], depths[1])
+    log_ang = log_angular(cos2, sin2, aniso)[0]
+    return jnp.maximum(logsumexp(_terms(log_k, log_w, ch, log_ang, log_k_knots, log_phi), axis=-1), -1e4)
 
 
 @log_matrix.defjvp
 def _log_matrix_jvp(primals, tangents):
-    p, log_phi, omega, depths, log_k_knots = primals
-    p_dot, phi_dot = tangents[0], tangents[1]
+    p, log_phi, aniso, omega, depths, log_k_knots = primals
+    p_dot, phi_dot, aniso_dot = tangents[0], tangents[1], tangents[2]
     d1, d2 = depths[0], depths[1]
     # the nodes and their three tangents, one jvp each
     fn = lambda q: _nodes(q, omega, d1, d2)                                        # noqa: E731
     node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
-    log_k, log_w, ch = node_t[0][0]
-    d_log_k, d_log_w, d_ch = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
+    log_k, log_w, ch, cos2, sin2 = node_t[0][0]
+    d_log_k, d_log_w, d_ch, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
     # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
     spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
     basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
-    base = phi + log_w
+    log_ang, da_c, da_s, da_p, da_q = log_angular(cos2, sin2, aniso)
+    base = phi + log_ang + log_w
     terms = jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES])                 # (10, F, N)
     out = logsumexp(terms, axis=-1)
     weight = jnp.exp(terms - out[..., None])                                     # softmax over the nodes
     floor = out > -1e4
     out = jnp.maximum(out, -1e4)
-    d_base = dphi * d_log_k + d_log_w                                             # (3, F, N)
+    d_base = dphi * d_log_k + d_log_w + da_c * d_cos2 + da_s * d_sin2            # (3, F, N)
     d_terms = jnp.stack([d_base + d_ch[:, i] + d_ch[:, j] for i, j in ENTRIES], axis=1)   # (3, 10, F, N)
     jac_p = jnp.moveaxis(jnp.sum(weight * d_terms, axis=-1), 0, -1)               # (10, F, 3)
     jac_phi = jnp.einsum("efn,fnj->efj", weight, basis)                           # (10, F, n)
-    out_dot = jnp.einsum("efi,i->ef", jac_p, p_dot) + jnp.einsum("efj,j->ef", jac_phi, phi_dot)
+    jac_ang = jnp.stack([jnp.sum(weight * da_p, -1), jnp.sum(weight * da_q, -1)], -1)    # (10, F, 2)
+    out_dot = (jnp.einsum("efi,i->ef", jac_p, p_dot) + jnp.einsum("efj,j->ef", jac_phi, phi_dot)
+               + jnp.einsum("efi,i->ef", jac_ang, aniso_dot))
     return out, jnp.where(floor, out_dot, 0.0)

@@ -13,7 +13,7 @@ hundreds of decades over the band (exp(-alpha (d2 - d1))).
 - ``log_g`` / ``log_r_exact``: closed form for the Gaussian window (Eq. 24-25),
   evaluated with erfcx and logaddexp, finite for alpha up to 1e8 rad/m and
   a from 1 um to 1 m in float32 and float64.
-- ``log_r_rough``: the paper's Eq. 26 (large-alpha asymptote), corrected as in DESIGN.md.
+- ``log_r_rough``: the paper's Eq. 26 (large-alpha asymptote), corrected as in docs/model.md.
 - ``log_g_quadrature``: Gauss-Legendre reference, used only to check the two.
 - ``log_r_hertz``: the Hertz window (Eq. 12) for a 1-D texture along the slip.
 """

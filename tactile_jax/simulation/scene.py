@@ -2,7 +2,7 @@
 
 The probe signals are computed from the surface field directly, never from
 the ratio formulas of ``r_curve`` (so that tests of the estimators are not
-tests of themselves). Physics (see DESIGN.md): the object's texture u0 slides
+tests of themselves). Physics (see docs/model.md): the object's texture u0 slides
 with velocity v = (vx, vy); the field under the contact is
 w(x, y; a) u0(x - vx t, y - vy t) with the stationary contact window w
 (Gaussian exp(-3 r^2 / (2 a^2)) or Hertz sqrt(1 - r^2 / a^2)); an x-probe at
@@ -11,7 +11,7 @@ depth d outputs
     p(t) = Int Int K_d(x) w(x, y) u0(x - vx t, y - vy t) dx dy        (metres x u0)
 
 with K_d the 1-D Poisson kernel of ``decay``, and a y-probe the same with
-K_d(y). Channels [x1, x2, y1, y2] as in DESIGN.md.
+K_d(y). Channels [x1, x2, y1, y2] as in docs/model.md.
 
 Algorithm (numpy / scipy.fft, bounded memory)
 ---------------------------------------------

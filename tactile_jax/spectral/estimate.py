@@ -6,7 +6,7 @@ Leading batch dimensions are carried through, and everything here works
 under ``jit`` and ``vmap``: segment lengths, taper counts and FFT sizes are
 static Python ints, the data and ``fs`` may be traced.
 
-Names say which kind of spectrum they hold (DESIGN.md, "Conventions"):
+Names say which kind of spectrum they hold (docs/model.md, "Conventions"):
 
 - ``psd`` / ``csd`` are POWER spectral densities (signal units^2 / Hz),
   one-sided, scaled as ``scipy.signal.welch(..., scaling="density")``;
