@@ -63,7 +63,7 @@ def _matrix_program(n_nodes):
     old = lines.N_NODES
     lines.N_NODES = n_nodes
     try:
-        f = jax.jit(lambda p, omega: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS))
+        f = jax.jit(lambda p, omega: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS)[0])
         return f.lower(jnp.ones(3), jnp.ones(62)).compile()      # traced here, at n_nodes
     finally:
         lines.N_NODES = old
@@ -75,7 +75,7 @@ def test_slip_along_x_through_a_large_contact_gives_the_exact_r_curve():
     ratio stays far above the x pair's at high omega."""
     v, a = 0.02, 8e-3
     omega = jnp.linspace(20.0, 400.0, 12)
-    m = np.asarray(jax.jit(lambda p: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS))(jnp.array([v, 1e-9, a])))
+    m = np.asarray(jax.jit(lambda p: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS)[0])(jnp.array([v, 1e-9, a])))
     ratio_x = m[1] - m[0]
     assert np.allclose(ratio_x, np.asarray(log_r_exact(omega / v, D1, D2, a)), atol=2e-3)
     ratio_y = m[4] - m[3]
@@ -103,7 +103,7 @@ def test_the_custom_jacobian_matches_finite_differences():
     omega = jnp.linspace(5.0, 300.0, 9)
     q = jnp.concatenate([jnp.array([0.016, 0.011, 1.5e-3, 0.4, -0.7]), LOG_PHI])
     # one compiled program serves the primal (for the differences) and the custom JVP
-    jvp = jax.jit(lambda q, dq: jax.jvp(lambda q: lines.log_matrix(q[:3], q[5:], q[3:5], omega, DEPTHS, KNOTS),
+    jvp = jax.jit(lambda q, dq: jax.jvp(lambda q: lines.log_matrix(q[:3], q[5:], q[3:5], omega, DEPTHS, KNOTS)[0],
                                         (q,), (dq,)))
     # central differences in log of the physical parameters, the angular factor and the knots
     step = np.concatenate([1e-5 * np.asarray(q[:3]), np.full(2 + 12, 1e-5)])

@@ -25,8 +25,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import logsumexp
 
+from .._numerics import tiny
 from ..model import cross_pair
 from .data import JointData
 from ..model.lines import ENTRIES, log_matrix
@@ -71,9 +71,35 @@ def _to_half_bins(f):
     return jnp.concatenate([inter, even[..., -1:]], axis=-1)
 
 
-def _window_average(half, white_half, idx, log_kernel):
-    """(C, L) log of each bin's kernel average of exp(half + white_half) (C, H) at ``idx`` (L, J)."""
-    return logsumexp(log_kernel + (half + white_half)[:, idx], axis=-1)
+#: the auto entries of ``ENTRIES`` (positive densities) and, for each entry, its two autos
+_AUTO = tuple(k for k, (i, j) in enumerate(ENTRIES) if i == j)
+_AUTO_OF = {i: ENTRIES.index((i, i)) for i in range(4)}
+
+
+def _half_bins(log_abs, sign):
+    """The ten entries on half bins: autos cubic in log density, cross entries cubic in their coherency
+    S_ij / sqrt(S_ii S_jj) (bounded and smooth even where S_ij changes sign). Returns log|S| and sign (10, H)."""
+    auto = {k: _to_half_bins(log_abs[k]) for k in _AUTO}
+    logs, signs = [], []
+    for k, (i, j) in enumerate(ENTRIES):
+        if k in auto:
+            logs.append(auto[k])
+            signs.append(jnp.ones_like(auto[k]))
+            continue
+        scale = 0.5 * (log_abs[_AUTO_OF[i]] + log_abs[_AUTO_OF[j]])
+        rho = _to_half_bins(sign[k] * jnp.exp(log_abs[k] - scale))
+        half_scale = 0.5 * (auto[_AUTO_OF[i]] + auto[_AUTO_OF[j]])
+        logs.append(jnp.log(jnp.maximum(jnp.abs(rho), tiny(rho))) + half_scale)
+        signs.append(jnp.where(rho < 0, -1.0, 1.0).astype(rho.dtype))
+    return jnp.stack(logs), jnp.stack(signs)
+
+
+def _window_average(half, sign, weight, idx, log_kernel):
+    """(C, L) each bin's kernel average of sign exp(half) times ``weight`` (C, H) (real or complex) at ``idx``
+    (L, J): (log of its magnitude scale, the average relative to it)."""
+    terms = log_kernel + half[:, idx]
+    top = jnp.max(terms, axis=-1)
+    return top, jnp.sum(jnp.exp(terms - top[..., None]) * (sign * weight)[:, idx], axis=-1)
 
 
 def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
@@ -81,26 +107,26 @@ def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
     i = INDEX
     phys = jnp.exp(jnp.stack([theta[i["log_vx"]], theta[i["log_vy"]], theta[i["log_a"]]]))
     aniso = jnp.stack([theta[i["aniso_p"]], theta[i["aniso_q"]]])
-    dens = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots)    # (10, F)
+    dens, sign = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots)  # (10, F)
     # gains and levels: x2 has gx, y1 the level ay (power), y2 both (amplitudes: half the power's log)
     level, gx, gy = theta[i["log_ay"]], theta[i["log_gx"]], theta[i["log_gy"]]
     amp = jnp.stack([0.0, gx, 0.5 * level, 0.5 * level + gy])
     dens = dens + jnp.stack([amp[i] + amp[j] for i, j in ENTRIES])[:, None]
-    half = _to_half_bins(dens)                                                        # (10, H)
+    half, half_sign = _half_bins(dens, sign)                                         # (10, H)
     n_fit = data.omega.shape[0]
     idx = half_bin_index(n_fit, data.log_kernel.shape[0])
-    white = jnp.repeat(data.white_half, 3, axis=0)                                   # per pair entry
-    auto = _window_average(half[:6], white, idx, data.log_kernel) - jnp.repeat(data.white_bin, 3, axis=0)
+    white = jnp.exp(jnp.repeat(data.white_half, 3, axis=0))                          # |A|^2 per pair entry
+    top, avg = _window_average(half[:6], half_sign[:6], white, idx, data.log_kernel)
+    auto = top + jnp.log(jnp.maximum(jnp.abs(avg), tiny(top))) - jnp.repeat(data.white_bin, 3, axis=0)
     pair = auto.reshape(2, 3, n_fit)                                                 # [pair][11, 12, 22]
+    s12 = jnp.where(avg[1::3] < 0, -1.0, 1.0)                                        # (2, L) the sign of S12
     noise = jnp.maximum(jnp.stack([jnp.full(2, theta[i["log_noise"]]), jnp.full(2, -700.0)], -1),
                         data.log_noise)                                                  # (2, 2)
     b11 = jnp.logaddexp(pair[:, 0], noise[:, :1])
     b12 = pair[:, 1]
     b22 = jnp.logaddexp(pair[:, 2], noise[:, 1:])
     # x-y entries: complex weights conj(A_x) A_y on the signed grid
-    terms = data.log_kernel + half[6:][:, idx]                                       # (4, L, J)
-    top = jnp.max(terms, axis=-1)
-    avg = jnp.sum(jnp.exp(terms - top[..., None]) * data.xy_white_half[idx], axis=-1)
+    top, avg = _window_average(half[6:], half_sign[6:], data.xy_white_half, idx, data.log_kernel)   # (4, L)
     ref = b11[0]
     cxy = avg / data.xy_white_bin * jnp.exp(top - ref)                               # (4, L), / S_x1x1
     eps = 8.0 * jnp.finfo(b22.dtype).eps
@@ -109,10 +135,11 @@ def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
     # the 4 x 4 matrix relative to S_x1x1, and the y pair's chain on the x pair
     e = lambda v: jnp.exp(v - ref).astype(cxy.dtype)                                  # noqa: E731
     c = jnp.conj
-    rows = [[e(b11[0]), e(b12[0]), cxy[0], cxy[1]],
-            [e(b12[0]), e(b22[0]), cxy[2], cxy[3]],
-            [c(cxy[0]), c(cxy[2]), e(b11[1]), e(b12[1])],
-            [c(cxy[1]), c(cxy[3]), e(b12[1]), e(b22[1])]]
+    x12, y12 = e(b12[0]) * s12[0], e(b12[1]) * s12[1]
+    rows = [[e(b11[0]), x12, cxy[0], cxy[1]],
+            [x12, e(b22[0]), cxy[2], cxy[3]],
+            [c(cxy[0]), c(cxy[2]), e(b11[1]), y12],
+            [c(cxy[1]), c(cxy[3]), y12, e(b22[1])]]
     m = jnp.moveaxis(jnp.stack([jnp.stack(r) for r in rows]), -1, 0)                  # (L, 4, 4)
     ok = data.mask_xy.any(axis=0)[:, None, None]
     m = jnp.where(ok, m, jnp.eye(4, dtype=m.dtype))                                   # unused bins: finite

@@ -56,8 +56,8 @@ def _nodes(p, omega, d1, d2):
     """Nodes of the line k . v = omega for (vx, vy, a) = p at omega (F,) >= 0, rad/s.
 
     Returns log|k| (F, N), the log quadrature weights including 1 / |v_u| (F, N; -2e4 where a
-    panel is empty), the four channels' log factors (4, F, N) and cos 2 theta, sin 2 theta of the
-    nodes' direction (F, N) each.
+    panel is empty), the four channels' log|factor| and sign (4, F, N) each, and cos 2 theta,
+    sin 2 theta of the nodes' direction (F, N) each.
     """
     vx, vy, a = p[0], p[1], p[2]
     k_g = _LOG_EDGE / (2.0 * d1)
@@ -99,7 +99,8 @@ def _nodes(p, omega, d1, d2):
     # one log_g over the four channels (written four times it compiles four times)
     k_s = jnp.stack([kx, kx, ky, ky])
     depth = jnp.stack([d1, d2, d1, d2])[:, None, None]
-    return log_k, log_w, log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx]), cos2, sin2
+    ch = log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx])
+    return log_k, log_w, ch, jnp.ones_like(ch), cos2, sin2
 
 
 def log_angular(cos2, sin2, aniso):
@@ -115,23 +116,31 @@ def log_angular(cos2, sin2, aniso):
     return jnp.log1p(lobe), p / r * inv, q / r * inv, d_p, d_q
 
 
-def _terms(log_k, log_w, ch, log_ang, log_k_knots, log_phi):
-    """(10, F, N) log integrands of the entries at the nodes."""
-    base = log_phi_at(log_k, log_k_knots, log_phi) + log_ang + log_w
-    return jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES])
+def _signed_sum(terms, signs):
+    """log|sum s e^t| over the last axis and its sign; the sign is +1 where the sum vanishes."""
+    out, sign = logsumexp(terms, axis=-1, b=signs, return_sign=True)
+    return out, jnp.where(sign == 0, 1.0, sign).astype(terms.dtype)
+
+
+def _entries(base, ch, sign):
+    """(10, F, N) log integrands and signs of the entries at the nodes."""
+    return (jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES]),
+            jnp.stack([sign[i] * sign[j] for i, j in ENTRIES]))
 
 
 @jax.custom_jvp
 def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots):
-    """log of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s: (10, F).
+    """log|S| and sign of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s:
+    (10, F) each.
 
     p: (vx, vy, a) in m/s, m/s, m (positive). log_phi: (n,) log texture spectrum at the knots
     ``log_k_knots`` (log rad/m). aniso: (2,) the angular factor's (p, q) (0, 0: isotropic).
     depths: (2,) d1, d2 in m. No gains, levels or noise.
     """
-    log_k, log_w, ch, cos2, sin2 = _nodes(p, omega, depths[0], depths[1])
-    log_ang = log_angular(cos2, sin2, aniso)[0]
-    return jnp.maximum(logsumexp(_terms(log_k, log_w, ch, log_ang, log_k_knots, log_phi), axis=-1), -1e4)
+    log_k, log_w, ch, sign, cos2, sin2 = _nodes(p, omega, depths[0], depths[1])
+    base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
+    out, out_sign = _signed_sum(*_entries(base, ch, sign))
+    return jnp.maximum(out, -1e4), out_sign
 
 
 @log_matrix.defjvp
@@ -142,17 +151,18 @@ def _log_matrix_jvp(primals, tangents):
     # the nodes and their three tangents, one jvp each
     fn = lambda q: _nodes(q, omega, d1, d2)                                        # noqa: E731
     node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
-    log_k, log_w, ch, cos2, sin2 = node_t[0][0]
-    d_log_k, d_log_w, d_ch, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
+    log_k, log_w, ch, sign, cos2, sin2 = node_t[0][0]
+    d_log_k, d_log_w, d_ch, _, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
     # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
     spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
     basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
     log_ang, da_c, da_s, da_p, da_q = log_angular(cos2, sin2, aniso)
     base = phi + log_ang + log_w
-    terms = jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES])                 # (10, F, N)
-    out = logsumexp(terms, axis=-1)
-    weight = jnp.exp(terms - out[..., None])                                     # softmax over the nodes
+    terms, signs = _entries(base, ch, sign)                                       # (10, F, N)
+    out, out_sign = _signed_sum(terms, signs)
+    # d log|sum s e^t| = sum s e^(t - out) dt / sign(sum): a signed softmax over the nodes
+    weight = signs * out_sign[..., None] * jnp.exp(terms - out[..., None])
     floor = out > -1e4
     out = jnp.maximum(out, -1e4)
     d_base = dphi * d_log_k + d_log_w + da_c * d_cos2 + da_s * d_sin2            # (3, F, N)
@@ -162,4 +172,4 @@ def _log_matrix_jvp(primals, tangents):
     jac_ang = jnp.stack([jnp.sum(weight * da_p, -1), jnp.sum(weight * da_q, -1)], -1)    # (10, F, 2)
     out_dot = (jnp.einsum("efi,i->ef", jac_p, p_dot) + jnp.einsum("efj,j->ef", jac_phi, phi_dot)
                + jnp.einsum("efi,i->ef", jac_ang, aniso_dot))
-    return out, jnp.where(floor, out_dot, 0.0)
+    return (out, out_sign), (jnp.where(floor, out_dot, 0.0), jnp.zeros_like(out_sign))
