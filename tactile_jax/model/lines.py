@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import logsumexp
 
 from .._numerics import tiny
 from .._quadrature import gauss_legendre
@@ -56,8 +55,9 @@ def _nodes(p, omega, d1, d2):
     """Nodes of the line k . v = omega for (vx, vy, a) = p at omega (F,) >= 0, rad/s.
 
     Returns log|k| (F, N), the log quadrature weights including 1 / |v_u| (F, N; -2e4 where a
-    panel is empty), the four channels' log|factor| and sign (4, F, N) each, and cos 2 theta,
-    sin 2 theta of the nodes' direction (F, N) each.
+    panel is empty), the four channels' factors as a log envelope and a signed mantissa
+    (factor = mantissa exp(envelope); (4, F, N) each; the Gaussian window's mantissa is 1), and
+    cos 2 theta, sin 2 theta of the nodes' direction (F, N) each.
     """
     vx, vy, a = p[0], p[1], p[2]
     k_g = _LOG_EDGE / (2.0 * d1)
@@ -116,16 +116,24 @@ def log_angular(cos2, sin2, aniso):
     return jnp.log1p(lobe), p / r * inv, q / r * inv, d_p, d_q
 
 
-def _signed_sum(terms, signs):
-    """log|sum s e^t| over the last axis and its sign; the sign is +1 where the sum vanishes."""
-    out, sign = logsumexp(terms, axis=-1, b=signs, return_sign=True)
-    return out, jnp.where(sign == 0, 1.0, sign).astype(terms.dtype)
+def _entries(base, env, mant):
+    """(10, F, N) log envelopes and signed mantissas of the entries' integrands at the nodes."""
+    return (jnp.stack([base + env[i] + env[j] for i, j in ENTRIES]),
+            jnp.stack([mant[i] * mant[j] for i, j in ENTRIES]))
 
 
-def _entries(base, ch, sign):
-    """(10, F, N) log integrands and signs of the entries at the nodes."""
-    return (jnp.stack([base + ch[i] + ch[j] for i, j in ENTRIES]),
-            jnp.stack([sign[i] * sign[j] for i, j in ENTRIES]))
+def _signed_sum(terms, mant):
+    """sum over the last axis of mant e^terms as (log of its magnitude scale ``top``, relative weights
+    e^(terms - top), the sum relative to e^top)."""
+    top = jnp.max(terms, axis=-1)
+    weight = jnp.exp(terms - top[..., None])
+    return top, weight, jnp.sum(weight * mant, axis=-1)
+
+
+def _log_abs(top, total):
+    """log|sum| and its sign (+1 where the sum vanishes), floored at -1e4."""
+    out = top + jnp.log(jnp.maximum(jnp.abs(total), tiny(total)))
+    return jnp.maximum(out, -1e4), jnp.where(total < 0, -1.0, 1.0).astype(total.dtype)
 
 
 @jax.custom_jvp
@@ -137,10 +145,10 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots):
     ``log_k_knots`` (log rad/m). aniso: (2,) the angular factor's (p, q) (0, 0: isotropic).
     depths: (2,) d1, d2 in m. No gains, levels or noise.
     """
-    log_k, log_w, ch, sign, cos2, sin2 = _nodes(p, omega, depths[0], depths[1])
+    log_k, log_w, env, mant, cos2, sin2 = _nodes(p, omega, depths[0], depths[1])
     base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
-    out, out_sign = _signed_sum(*_entries(base, ch, sign))
-    return jnp.maximum(out, -1e4), out_sign
+    top, _, total = _signed_sum(*_entries(base, env, mant))
+    return _log_abs(top, total)
 
 
 @log_matrix.defjvp
@@ -151,25 +159,27 @@ def _log_matrix_jvp(primals, tangents):
     # the nodes and their three tangents, one jvp each
     fn = lambda q: _nodes(q, omega, d1, d2)                                        # noqa: E731
     node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
-    log_k, log_w, ch, sign, cos2, sin2 = node_t[0][0]
-    d_log_k, d_log_w, d_ch, _, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
+    log_k, log_w, env, mant, cos2, sin2 = node_t[0][0]
+    d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
     # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
     spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
     basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
     log_ang, da_c, da_s, da_p, da_q = log_angular(cos2, sin2, aniso)
     base = phi + log_ang + log_w
-    terms, signs = _entries(base, ch, sign)                                       # (10, F, N)
-    out, out_sign = _signed_sum(terms, signs)
-    # d log|sum s e^t| = sum s e^(t - out) dt / sign(sum): a signed softmax over the nodes
-    weight = signs * out_sign[..., None] * jnp.exp(terms - out[..., None])
+    terms, m = _entries(base, env, mant)                                          # (10, F, N)
+    top, weight, total = _signed_sum(terms, m)
+    out, out_sign = _log_abs(top, total)
     floor = out > -1e4
-    out = jnp.maximum(out, -1e4)
+    # S = e^top sum w m: d log|S| = sum w (m dT + dm) / sum w m, finite where a factor changes sign
+    inv = 1.0 / jnp.where(jnp.abs(total) > 0, total, 1.0)
+    wm = weight * m * inv[..., None]                                              # (10, F, N)
     d_base = dphi * d_log_k + d_log_w + da_c * d_cos2 + da_s * d_sin2            # (3, F, N)
-    d_terms = jnp.stack([d_base + d_ch[:, i] + d_ch[:, j] for i, j in ENTRIES], axis=1)   # (3, 10, F, N)
-    jac_p = jnp.moveaxis(jnp.sum(weight * d_terms, axis=-1), 0, -1)               # (10, F, 3)
-    jac_phi = jnp.einsum("efn,fnj->efj", weight, basis)                           # (10, F, n)
-    jac_ang = jnp.stack([jnp.sum(weight * da_p, -1), jnp.sum(weight * da_q, -1)], -1)    # (10, F, 2)
+    d_terms = jnp.stack([d_base + d_env[:, i] + d_env[:, j] for i, j in ENTRIES], axis=1)   # (3, 10, F, N)
+    d_m = jnp.stack([d_mant[:, i] * mant[j] + mant[i] * d_mant[:, j] for i, j in ENTRIES], axis=1)
+    jac_p = jnp.moveaxis(jnp.sum(wm * d_terms + weight * inv[..., None] * d_m, axis=-1), 0, -1)   # (10, F, 3)
+    jac_phi = jnp.einsum("efn,fnj->efj", wm, basis)                               # (10, F, n)
+    jac_ang = jnp.stack([jnp.sum(wm * da_p, -1), jnp.sum(wm * da_q, -1)], -1)     # (10, F, 2)
     out_dot = (jnp.einsum("efi,i->ef", jac_p, p_dot) + jnp.einsum("efj,j->ef", jac_phi, phi_dot)
                + jnp.einsum("efi,i->ef", jac_ang, aniso_dot))
     return (out, out_sign), (jnp.where(floor, out_dot, 0.0), jnp.zeros_like(out_sign))

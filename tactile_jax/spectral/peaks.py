@@ -40,10 +40,21 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["LOBE", "Lines", "line_spectra", "detect_lines", "running_median", "hann_offset"]
+__all__ = ["LOBE", "SUM", "ISO", "Lines", "line_spectra", "detect_lines", "find_lines", "hann_offset"]
 
-#: half-width of the Hann main lobe, bins (the main-lobe sums run over 2 LOBE + 1 bins)
+#: half-width of the Hann main lobe, bins (a candidate is the highest bin within +/- LOBE)
 LOBE = 2
+#: half-width of the main-lobe sums, bins: +/- 1 bin holds 98-100 % of a Hann tone's power and, for a weak
+#: line, a better signal-to-noise ratio than the whole lobe
+SUM = 1
+#: noise-power correlations of Hann (Welch) estimates 1 and 2 bins apart, (2/3)^2 and (1/6)^2: a sum of
+#: 2 SUM + 1 adjacent bins averages LOBE_DOF_GAIN times more independent noise than one bin
+_HANN_RHO = (1.0, 4.0 / 9.0, 1.0 / 36.0)
+LOBE_DOF_GAIN = (2 * SUM + 1) ** 2 / sum(_HANN_RHO[abs(i - j)] for i in range(2 * SUM + 1) for j in range(2 * SUM + 1))
+#: floor of the interpolated frequency's error, bins
+OMEGA_FLOOR = 0.002
+#: false-alarm probability of the coherence test for one bin of noise
+COHERENCE_ALPHA = 1e-4
 #: distance (bins) of the isolation test's bins from a peak
 ISO = 3
 
@@ -51,7 +62,8 @@ ISO = 3
 class Lines(NamedTuple):
     """Coherent lines (modes) found in one record's spectra, sorted by frequency (numpy arrays).
 
-    omega: (L,) rad/s, interpolated to a fraction of a bin. peak: (L,) int, the bin of the mode's
+    omega: (L,) rad/s, interpolated to a fraction of a bin; omega_err: (L,) its one-sigma error, rad/s
+    (``OMEGA_FLOOR`` bins and the noise's share, 1 / sqrt(K snr) bins at the peak's snr). peak: (L,) int, the bin of the mode's
     peak in its stronger pair. heard: (2, L) bool, the x pair (row 0) and the y pair (row 1) hear
     the mode coherently in both probes. log_ratio, log_ratio_err: (2, L) each pair's H1 log
     amplitude ratio deep/shallow (natural log) and its one-sigma error (NaN where not heard).
@@ -66,6 +78,7 @@ class Lines(NamedTuple):
     """
 
     omega: np.ndarray
+    omega_err: np.ndarray
     peak: np.ndarray
     heard: np.ndarray
     log_ratio: np.ndarray
@@ -115,14 +128,6 @@ def line_spectra(signals, fs: float, *, nperseg: int | None = None, source: str 
                    np.arange(m) < int(seg.n_valid), np.asarray(float(seg.dof)))
 
 
-def running_median(x, half_width: int):
-    """Median of ``x`` (..., M) over the 2 ``half_width`` + 1 bins centred on each bin (edges padded)."""
-    x = np.asarray(x, float)
-    pad = np.pad(x, [(0, 0)] * (x.ndim - 1) + [(half_width, half_width)], mode="reflect")
-    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half_width + 1, axis=-1)
-    return np.median(win, axis=-1)
-
-
 def hann_offset(a0, a_left, a_right):
     """Offset (bins, in [-0.5, 0.5]) of a tone from its peak bin, from the amplitudes (not powers) of
     the peak bin ``a0`` and its neighbours: Grandke's two-bin ratio for the Hann window."""
@@ -141,8 +146,8 @@ def _as_numpy(spec) -> _Spec:
 
 
 def _lobe_sum(v, idx):
-    """sum of v (..., M) over idx - LOBE .. idx + LOBE: (..., len(idx))."""
-    offs = np.arange(-LOBE, LOBE + 1)
+    """sum of v (..., M) over idx - SUM .. idx + SUM: (..., len(idx))."""
+    offs = np.arange(-SUM, SUM + 1)
     return np.take(v, idx[:, None] + offs[None, :], axis=-1).sum(-1)
 
 
@@ -173,8 +178,8 @@ def _background(psd, half_width, quantile):
 
 
 def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: float = 20.0, weak_db: float = 10.0,
-                 deep_db: float = 6.0, min_coherence: float = 0.9, cross_db: float = 10.0,
-                 min_cross_coherence: float = 0.9, background_bins: int = 64, background_quantile: float = 0.25,
+                 deep_db: float = 6.0, min_coherence: float = 0.5, cross_db: float = 10.0,
+                 min_cross_coherence: float = 0.5, background_bins: int = 64, background_quantile: float = 0.25,
                  first_bin: int = 3) -> Lines:
     """The coherent lines of ``spec`` (a ``band.Spectra``, numpy or jnp; NOT prewhitened): see the module.
 
@@ -191,6 +196,8 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
     d_omega = float(s.omega[1] - s.omega[0])
     bg = _background(psd[:, :m], background_bins, background_quantile)
     lo, hi = max(first_bin, LOBE, ISO), m - max(LOBE, ISO) - 1
+    # the coherence a pair needs: min_coherence, and above what noise reaches with probability COHERENCE_ALPHA
+    g2_min = max(min_coherence, 1.0 - COHERENCE_ALPHA ** (1.0 / max(s.dof - 1.0, 1e-3)))
     # candidates: per pair, the strongest max_lines shallow peaks
     cands, n_trunc = [], 0
     for p in range(2):
@@ -236,10 +243,10 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
         g2 = np.where((s11 > 0) & (s22 > 0), s12 ** 2 / np.maximum(s11 * s22, 1e-300), 0.0)
         coh[p] = g2
         shallow = (db[2 * p] >= weak_db) & own[p]
-        h = shallow & (db[2 * p + 1] >= deep_db) & (g2 >= min_coherence)
+        h = shallow & (db[2 * p + 1] >= deep_db) & (g2 >= g2_min)
         heard[p] = h
         log_ratio[p] = np.where(h, np.log(np.maximum(s12, 1e-300)) - np.log(np.maximum(s11, 1e-300)), np.nan)
-        err[p] = np.where(h, _bp_err(g2, s.dof), np.nan)
+        err[p] = np.where(h, _bp_err(g2, s.dof * LOBE_DOF_GAIN), np.nan)
         so = shallow & ~h & (db[2 * p] >= min_db)
         shallow_only[p] = int(so.sum())
         if so.any():
@@ -252,21 +259,81 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
         sxy = np.abs(_lobe_sum(s.xy[0], idx))
         g2c = np.where((sx > 0) & (sy > 0), sxy ** 2 / np.maximum(sx * sy, 1e-300), 0.0)
         cross_coh = g2c
-        ok = (db[0] >= cross_db) & (db[2] >= cross_db) & own[0] & own[1] & (g2c >= min_cross_coherence)
+        ok = (db[0] >= cross_db) & (db[2] >= cross_db) & own[0] & own[1] & (g2c >= max(min_cross_coherence, g2_min))
         x_ref = sx / bg[0, idx] >= sy / bg[2, idx]
         lc = np.where(x_ref, np.log(np.maximum(sxy, 1e-300)) - np.log(np.maximum(sx, 1e-300)),
                       np.log(np.maximum(sy, 1e-300)) - np.log(np.maximum(sxy, 1e-300)))
         cross_log = np.where(ok, lc, np.nan)
-        cross_err = np.where(ok, _bp_err(g2c, s.dof), np.nan)
-    # frequency to a fraction of a bin, from the stronger pair's shallow amplitudes
-    if n:
-        strong = np.where(db[0] >= db[2], 0, 2)
-        amp = np.sqrt(psd[strong[None, :], idx[None, :] + np.arange(-1, 2)[:, None]])
-        omega = (idx + hann_offset(amp[1], amp[0], amp[2])) * d_omega
+        cross_err = np.where(ok, _bp_err(g2c, s.dof * LOBE_DOF_GAIN), np.nan)
+    # two pairs hearing a "mode" whose shallow probes are not coherent with each other hear two different
+    # modes in one bin: split it into two single-pair modes (each its own frequency)
+    split = heard[0] & heard[1] & (cross_coh < max(min_cross_coherence, g2_min))
+    strong = np.where(db[0] >= db[2], 0, 1)
+    pair_of = np.concatenate([np.full(n, -1), np.where(strong[split] == 0, 1, 0)])     # -1: both pairs
+    rows = np.concatenate([np.arange(n), np.flatnonzero(split)])
+    heard = heard[:, rows]
+    for p in range(2):
+        heard[p, :n] &= ~(split & (strong != p))
+        heard[p, n:] &= pair_of[n:] == p
+    idx_r = idx[rows]
+    drop = lambda v: np.where(heard, v, np.nan)  # noqa: E731
+    log_ratio, err = drop(log_ratio[:, rows]), drop(err[:, rows])
+    coh, db = coh[:, rows], db[:, rows]
+    cross_log, cross_err, cross_coh = cross_log[rows], cross_err[rows], cross_coh[rows]
+    # frequency to a fraction of a bin, from the shallow amplitudes of the stronger pair (of the pair that hears it)
+    if rows.size:
+        ref = np.where(pair_of >= 0, 2 * np.maximum(pair_of, 0), np.where(db[0] >= db[2], 0, 2))
+        amp = np.sqrt(psd[ref[None, :], idx_r[None, :] + np.arange(-1, 2)[:, None]])
+        omega = (idx_r + hann_offset(amp[1], amp[0], amp[2])) * d_omega
+        snr = 10.0 ** (np.take_along_axis(db, ref[None, :], 0)[0] / 10.0)
+        omega_err = d_omega * np.sqrt(OMEGA_FLOOR ** 2 + 1.0 / (s.dof * snr))
     else:
-        omega = np.zeros(0)
+        omega = omega_err = np.zeros(0)
     keep = heard.any(0) | np.isfinite(cross_log)
     sel = np.flatnonzero(keep)
-    return Lines(omega[sel], idx[sel], heard[:, sel], log_ratio[:, sel], err[:, sel], coh[:, sel],
-                 db[0::2][:, sel], db[1::2][:, sel], cross_log[sel], cross_err[sel], cross_coh[sel], d_omega,
-                 float(s.dof), int(n_trunc), shallow_only, so_omega, so_db)
+    sel = sel[np.argsort(omega[sel], kind="stable")]
+    return Lines(omega[sel], omega_err[sel], idx_r[sel], heard[:, sel], log_ratio[:, sel], err[:, sel],
+                 coh[:, sel], db[0::2][:, sel], db[1::2][:, sel], cross_log[sel], cross_err[sel], cross_coh[sel],
+                 d_omega, float(s.dof), int(n_trunc), shallow_only, so_omega, so_db)
+
+
+def _information(lines: Lines) -> tuple:
+    """(modes measured twice or more, modes heard, -nperseg rank) for choosing a segment length."""
+    n_meas = lines.heard.sum(0) + np.isfinite(lines.cross_log)
+    return int(np.sum(n_meas >= 2)), int(lines.heard.any(0).sum())
+
+
+def find_lines(signals, fs: float, *, nperseg: int | None = None, max_factor: int = 4, source: str | None = None,
+               **detect_kw) -> Lines:
+    """The lines of a recording ``signals`` (4, N) sampled at ``fs`` Hz: ``detect_lines`` on ``line_spectra``.
+
+    nperseg: samples per Hann segment; None: the default (``default_nperseg(N)``) and segments 2, 4, ...
+    ``max_factor`` times longer, at most N / 3 samples (5 or more segments), whose 512-bin grid still
+    reaches 1.2 x the highest shallow line of the default: the one with the most modes measured at least
+    twice (a pair's ratio or the cross-pair level), then the most modes heard, then the shorter. Longer
+    segments resolve lines closer together and lines near DC; shorter ones average more segments.
+    ``detect_kw``: ``detect_lines``'s settings. Raises ``TactileInputError`` for settings the record cannot meet.
+    """
+    from .estimate import default_nperseg
+    from .segments import N_BINS
+
+    x = np.asarray(signals, float)
+    if nperseg is not None:
+        return detect_lines(line_spectra(x, fs, nperseg=nperseg, source=source), **detect_kw)
+    n = x.shape[-1]
+    base = default_nperseg(n)
+    first = detect_lines(line_spectra(x, fs, nperseg=base, source=source), **detect_kw)
+    top = max([float(np.max(first.omega, initial=0.0))]
+              + [float(w) for w in first.shallow_only_omega if np.isfinite(w)])
+    best, best_key = first, _information(first) + (0,)
+    f = 2
+    while f <= max_factor and base * f <= n // 3:
+        seg_len = base * f
+        if (N_BINS - 1) * 2.0 * np.pi * fs / seg_len < 1.2 * top:
+            break
+        cand = detect_lines(line_spectra(x, fs, nperseg=seg_len, source=source), **detect_kw)
+        key = _information(cand) + (-f,)
+        if key > best_key:
+            best, best_key = cand, key
+        f *= 2
+    return best

@@ -1,0 +1,973 @@
+"""Line textures (gratings, wire nets, sums of plane waves): speeds and contact radius from coherent lines.
+
+A surface mode of wavevector k = (kx, ky) sliding at v rings at omega = |k . v|.
+Under the Gaussian contact window the x pair weighs it by G(|kx|; d, a) W(ky) and
+the y pair by G(|ky|; d, a) W(kx) (``model.probe.line_response``), so at the line
+
+    log r_x = log R(|kx|; a) + log gx,        log r_y = log R(|ky|; a) + log gy,
+    log c   = log rho + log G(|ky|; d1, a) - log G(|kx|; d1, a) + a^2 (ky^2 - kx^2) / 6,
+
+with r_x, r_y each pair's deep/shallow amplitude ratio (``spectral.peaks``), c the
+shallow probes' amplitude ratio y1/x1, R the exact R curve (``model.r_curve``), gx,
+gy the deep/shallow gain ratios and rho = g_y1 / g_x1 the shallow probes' gain
+ratio (all known; default 1). Only |kx|, |ky| are observable, so
+
+    omega_j = | |kx_j| |vx| + t_j |ky_j| |vy| |,   t_j = +/-1 unknown per line
+
+(t_j is the product of the signs of kx_j ky_j and vx vy).
+
+Identifiability (what the fit assumes and reports):
+
+- One ratio has two unknowns (|k_s|, a). A mode whose two components are both
+  measured (two of r_x, r_y, c) is a *2-D mode*; with all three it fixes a by
+  itself. Harmonics of one family (omega in ratios 1:2:3, k_j = n_j k_0) fix a from
+  the ratios of one pair. Otherwise a is profiled over ``a_range`` (0.5-10 mm) and,
+  where the lines do not fix it (sd of log a above ``A_DETERMINED``), marginalised:
+  the speeds' errors then hold the spread over the plausible range, and a speed
+  whose relative error exceeds ``MAX_REL_ERR`` is reported undetermined, with bounds.
+- A line heard by one pair only (and no cross level) gives one component; the
+  other is free, so its omega says nothing about v: it is left out of the speed fit
+  (reported with its |k_s|), except as a harmonic of a family.
+- All 2-D modes parallel (one family, a grating; one 2-D mode is always one): only
+  v_n = omega / |k| along the wavevector is determined (the aperture problem); vx,
+  vy are None, status ``undetermined``, with v_n and the normal's angle in [0, 90]
+  degrees (the mirror image -angle fits equally: the sign of kx ky is unknown).
+- Two or more directions: both speeds. Sign choices t_j are searched on a grid of
+  v (each line's best t at each v), the best minima refined; when two choices fit
+  equally well (chi2 within ``AMBIGUITY_CHI2``) and give speeds more than 3 sigma
+  apart, the speeds are None, status ``undetermined``, and ``alternatives`` lists
+  them. Combination lines (k1 + k2 of a net) are further 2-D modes: they pin the
+  relative signs.
+
+Errors: Gauss-Newton covariance of the weighted least squares (optimistix
+Levenberg-Marquardt, ``inference.lsq``) scaled by max(1, reduced chi2); the
+measurement errors are the Bendat-Piersol ones with floors calibrated on
+simulations (``RATIO_FLOOR``, ``CROSS_FLOOR``). A fit whose chi2 has a p-value
+below ``P_POOR`` (after dropping at most a quarter of the lines, one by one, beyond
+4 sigma) is ``poor_fit``. Parameters: log a, vx and vy linear (cm/s; they may be
+0), log |kx_j|, log |ky_j|.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..model.r_curve import log_g, log_r_exact
+from .lsq import least_squares
+
+__all__ = ["LineTable", "LineFit", "fit_lines", "NMAX", "A_RANGE", "RATIO_FLOOR", "CROSS_FLOOR",
+           "P_POOR", "MAX_REL_ERR", "A_DETERMINED", "AMBIGUITY_CHI2", "invert_ratio"]
+
+#: line slots of the compiled fit (more 2-D modes: the best measured are kept)
+NMAX = 32
+#: plausible contact radii (m) over which an undetermined a is marginalised
+A_RANGE = (0.5e-3, 10e-3)
+#: floors (natural-log units) added in quadrature to the Bendat-Piersol errors of the pairs' ratios and of
+#: the cross-pair level (calibrated on simulated gratings, nets and plane-wave textures: NOTES)
+RATIO_FLOOR = 0.001
+CROSS_FLOOR = 0.001
+#: chi2 p-value below which a fit is ``poor_fit``
+P_POOR = 1e-3
+#: relative one-sigma error above which a (marginalised) speed is reported undetermined
+MAX_REL_ERR = 0.25
+#: sd of log a above which the lines are said not to determine a (it is then marginalised)
+A_DETERMINED = 0.3
+#: chi2 margin within which two sign choices fit "equally well"
+AMBIGUITY_CHI2 = 4.0
+#: a line z-score beyond which the worst line may be dropped
+DROP_Z = 4.0
+#: harmonics considered for one family
+MAX_HARMONIC = 8
+
+_K_GRID = np.geomspace(20.0, 3e5, 4096)         # rad/m, for inverting the monotone curves
+_NG = 5                                          # global parameters: log a, vx, vy, log kx0, log ky0
+_K_UNIT = 1e3                                    # k in rad/mm inside the fit
+_V_UNIT = 1e-2                                   # v in cm/s inside the fit
+
+
+class LineTable(NamedTuple):
+    """The lines and what the fit infers of each (numpy, (L,) unless noted).
+
+    omega, omega_err: rad/s. heard: (2, L) the x and y pairs hear the line. log_ratio, log_ratio_err:
+    (2, L) measured deep/shallow log amplitude ratios. cross_log, cross_err: log|y1/x1| (NaN: none).
+    harmonic: the line's harmonic number in the family (0: not in it). used: in the speed fit.
+    dropped: left out as an outlier. kx, kx_err, ky, ky_err: inferred |kx|, |ky| (rad/m) and
+    one-sigma errors (NaN: undetermined). sign: the sign choice t (+1/-1; 0: not in the speed fit).
+    """
+
+    omega: np.ndarray
+    omega_err: np.ndarray
+    heard: np.ndarray
+    log_ratio: np.ndarray
+    log_ratio_err: np.ndarray
+    cross_log: np.ndarray
+    cross_err: np.ndarray
+    harmonic: np.ndarray
+    used: np.ndarray
+    dropped: np.ndarray
+    kx: np.ndarray
+    kx_err: np.ndarray
+    ky: np.ndarray
+    ky_err: np.ndarray
+    sign: np.ndarray
+
+
+class LineFit(NamedTuple):
+    """Result of ``fit_lines``; None where a quantity is undetermined. SI units (m/s, m, rad/s, rad/m).
+
+    status: "ok", "undetermined" (a speed the lines cannot give: a grating's ridge component, equally good
+    sign choices, or a not marginalisable a), "no_band" (no coherent line in the deep probes),
+    "poor_fit" (the model does not explain the lines). message: one line.
+    vx, vx_err, vy, vy_err: |vx|, |vy| and one-sigma errors. a, a_err: contact radius;
+    a_source: "fit", "given", "marginalised" (a over ``a_range``: a is None) or None.
+    v_n, v_n_err: speed along a grating's normal; v_n_bounds: (lo, hi) when v_n is undetermined.
+    normal_angle, normal_angle_err: the normal's angle to the x axis, degrees in [0, 90] (its mirror
+    image, minus that angle, fits equally). texture: "grating" (one family of parallel lines),
+    "multi" (two or more directions) or "none". ambiguous: two sign choices fit equally well with
+    different speeds; alternatives: ((|vx|, |vy|, chi2), ...) of the choices within
+    ``AMBIGUITY_CHI2`` of the best. speed_bounds: ((lo, hi), (lo, hi)) of |vx|, |vy| when a
+    marginalised speed is undetermined. chi2, redchi, dof; n_lines (detected), n_used (in the speed
+    fit), n_dropped (outliers). lines: the ``LineTable``.
+    """
+
+    status: str
+    message: str
+    vx: float | None = None
+    vx_err: float | None = None
+    vy: float | None = None
+    vy_err: float | None = None
+    a: float | None = None
+    a_err: float | None = None
+    a_source: str | None = None
+    v_n: float | None = None
+    v_n_err: float | None = None
+    v_n_bounds: tuple | None = None
+    normal_angle: float | None = None
+    normal_angle_err: float | None = None
+    texture: str = "none"
+    ambiguous: bool = False
+    alternatives: tuple = ()
+    speed_bounds: tuple | None = None
+    chi2: float = float("nan")
+    redchi: float = float("nan")
+    dof: int = 0
+    n_lines: int = 0
+    n_used: int = 0
+    n_dropped: int = 0
+    lines: LineTable | None = None
+
+
+# --------------------------------------------------------------------------------------------------------
+# the compiled least squares
+
+
+def _residuals(theta, args):
+    """Weighted residuals (4 NMAX,): x ratio, y ratio, cross level, frequency of every slot (0 where masked)."""
+    d1, d2 = args["d1"], args["d2"]
+    a = 1e-3 * jnp.exp(theta[0])
+    fam = args["family"] > 0
+    n = args["harm"]
+    log_n = jnp.log(jnp.maximum(n, 1.0))
+    lkx = jnp.where(fam, log_n + theta[3], theta[_NG:_NG + NMAX])
+    lky = jnp.where(fam, log_n + theta[4], theta[_NG + NMAX:])
+    kx = _K_UNIT * jnp.exp(lkx)
+    ky = _K_UNIT * jnp.exp(lky)
+    mx, my, mc, mw = args["mx"], args["my"], args["mc"], args["mw"]
+    # one call of log G for every (component, depth): log R = log G(d2) - log G(d1) (equal to
+    # ``log_r_exact`` to 1e-12 here; one special-function graph instead of four halves the compile time)
+    k4 = jnp.concatenate([kx, ky, kx, ky])
+    d4 = jnp.concatenate([jnp.full(2 * NMAX, d1), jnp.full(2 * NMAX, d2)])
+    lg = log_g(k4, d4, a).reshape(2, 2, NMAX)                      # (depth, component, line)
+    log_r = lg[1] - lg[0]
+    f = lg[0] + jnp.square(a) * jnp.square(jnp.stack([kx, ky])) / 6.0   # F = log G(d1) + a^2 k^2 / 6
+    rx = jnp.where(mx > 0, (log_r[0] + args["lgx"] - args["lrx"]) / args["srx"], 0.0)
+    ry = jnp.where(my > 0, (log_r[1] + args["lgy"] - args["lry"]) / args["sry"], 0.0)
+    rc = jnp.where(mc > 0, (args["lrho"] + f[1] - f[0] - args["lc"]) / args["sc"], 0.0)
+    vx, vy = _V_UNIT * theta[1], _V_UNIT * theta[2]
+    k0 = _K_UNIT * jnp.sqrt(jnp.exp(2 * theta[3]) + jnp.exp(2 * theta[4]))
+    w_model = jnp.where(fam, n * k0 * vx, jnp.abs(kx * vx + args["t"] * ky * vy))
+    rw = jnp.where(mw > 0, (w_model - args["w"]) / args["sw"], 0.0)
+    return jnp.concatenate([rx, ry, rc, rw])
+
+
+@jax.jit
+def _solve_jit(theta0, args, free):
+    res = least_squares(_residuals, theta0, args, free, max_steps=200, scale_covar=False)
+    return res._replace(jac=None), _residuals(res.theta, args)
+
+
+def _solve(theta0, args, free):
+    """(LsqResult, residuals at the fit (4 NMAX,)) as numpy: one compiled program for every record."""
+    res, r = _solve_jit(jnp.asarray(theta0, float), {k: jnp.asarray(v, float) for k, v in args.items()},
+                        jnp.asarray(free, bool))
+    return jax.tree.map(np.asarray, res), np.asarray(r)
+
+
+@functools.lru_cache(maxsize=64)
+def _curves(a: float, d1: float, d2: float):
+    """(log R, F = log G(d1) + a^2 k^2 / 6) on ``_K_GRID`` for contact radius ``a`` (m): both increase... R
+    decreases and F increases monotonically in k (checked for a from 0.3 to 10 mm)."""
+    return _curves_jit(jnp.asarray(a), jnp.asarray(d1), jnp.asarray(d2))
+
+
+@jax.jit
+def _curves_jit(a, d1, d2):
+    k = jnp.asarray(_K_GRID)
+    lr = log_r_exact(k, d1, d2, a)
+    f = log_g(k, d1, a) + jnp.square(a * k) / 6.0
+    return jnp.stack([lr, f])
+
+
+def _tables(a, d1, d2):
+    out = np.asarray(_curves(float(a), float(d1), float(d2)))
+    return out[0], out[1]
+
+
+def invert_ratio(log_ratio, a: float, d1: float, d2: float):
+    """|k| (rad/m) with log R(|k|; a) = ``log_ratio`` (gain removed), for contact radius ``a`` and depths
+    ``d1`` < ``d2`` (m); clipped to [20, 3e5] rad/m (log R decreases monotonically in |k|)."""
+    lr, _ = _tables(a, d1, d2)
+    return np.exp(np.interp(-np.asarray(log_ratio, float), -lr, np.log(_K_GRID)))
+
+
+def _invert_cross(target, a, d1, d2):
+    """|k| with F(|k|) = ``target``, F = log G(k; d1, a) + a^2 k^2 / 6 (increasing)."""
+    _, f = _tables(a, d1, d2)
+    return np.exp(np.interp(np.asarray(target, float), f, np.log(_K_GRID)))
+
+
+def _cross_f(k, a, d1, d2):
+    """F(|k|) = log G(|k|; d1, a) + a^2 k^2 / 6 by interpolation of the table."""
+    _, f = _tables(a, d1, d2)
+    return np.interp(np.log(np.asarray(k, float)), np.log(_K_GRID), f)
+
+
+# --------------------------------------------------------------------------------------------------------
+# measurements, starts, searches
+
+
+class _Data(NamedTuple):
+    """Per-line measurements with floors (numpy, (L,)) and constants."""
+
+    w: np.ndarray
+    sw: np.ndarray
+    hx: np.ndarray
+    hy: np.ndarray
+    hc: np.ndarray
+    lrx: np.ndarray
+    srx: np.ndarray
+    lry: np.ndarray
+    sry: np.ndarray
+    lc: np.ndarray
+    sc: np.ndarray
+    d1: float
+    d2: float
+    lgx: float
+    lgy: float
+    lrho: float
+    d_omega: float
+
+
+def _measurements(lines, d1, d2, gx, gy, rho, ratio_floor, cross_floor) -> _Data:
+    heard = np.asarray(lines.heard, bool)
+    lr = np.asarray(lines.log_ratio, float)
+    er = np.asarray(lines.log_ratio_err, float)
+    hx, hy = heard[0] & np.isfinite(lr[0]), heard[1] & np.isfinite(lr[1])
+    lc = np.asarray(lines.cross_log, float)
+    hc = np.isfinite(lc) & (rho is not None)
+    return _Data(np.asarray(lines.omega, float), np.asarray(lines.omega_err, float), hx, hy, hc,
+                 np.where(hx, lr[0], 0.0), np.where(hx, np.hypot(er[0], ratio_floor), 1.0),
+                 np.where(hy, lr[1], 0.0), np.where(hy, np.hypot(er[1], ratio_floor), 1.0),
+                 np.where(hc, lc, 0.0), np.where(hc, np.hypot(np.asarray(lines.cross_err, float), cross_floor), 1.0),
+                 float(d1), float(d2), math.log(gx), math.log(gy), math.log(rho) if rho is not None else 0.0,
+                 float(lines.d_omega))
+
+
+def _start_k(dat: _Data, a, sel):
+    """Starting |kx|, |ky| (rad/m; NaN where a component is not measured) of lines ``sel`` at radius ``a``."""
+    kx = np.where(dat.hx, invert_ratio(dat.lrx - dat.lgx, a, dat.d1, dat.d2), np.nan)
+    ky = np.where(dat.hy, invert_ratio(dat.lry - dat.lgy, a, dat.d1, dat.d2), np.nan)
+    only_x = dat.hc & dat.hx & ~dat.hy
+    only_y = dat.hc & dat.hy & ~dat.hx
+    if only_x.any():
+        ky = np.where(only_x, _invert_cross(dat.lc - dat.lrho + _cross_f(np.nan_to_num(kx, nan=1e3), a, dat.d1, dat.d2),
+                                            a, dat.d1, dat.d2), ky)
+    if only_y.any():
+        fx = _cross_f(np.nan_to_num(ky, nan=1e3), a, dat.d1, dat.d2) - (dat.lc - dat.lrho)
+        kx = np.where(only_y, _invert_cross(fx, a, dat.d1, dat.d2), kx)
+    return np.where(sel, kx, np.nan), np.where(sel, ky, np.nan)
+
+
+def _harmonic_numbers(w, sw, d_omega, sel):
+    """(omega0, n (L,)) of the largest fundamental whose harmonics 1..MAX_HARMONIC explain every line in ``sel``
+    (within 4 sigma or 0.3 bin); (None, zeros) if none does."""
+    idx = np.flatnonzero(sel)
+    if idx.size == 0:
+        return None, np.zeros(w.size)
+    tol = np.maximum(4.0 * sw, 0.3 * d_omega)
+    best = None
+    for j in idx:
+        for h in range(1, MAX_HARMONIC + 1):
+            w0 = w[j] / h
+            if w0 < 2.0 * d_omega:
+                break
+            n = np.rint(w[idx] / w0)
+            if np.all((n >= 1) & (n <= MAX_HARMONIC) & (np.abs(w[idx] - n * w0) <= tol[idx] + n * tol[j] / h)):
+                if best is None or w0 > best[0] * (1 + 1e-9):
+                    best = (w0, n)
+                break
+    if best is None:
+        return None, np.zeros(w.size)
+    n = np.zeros(w.size)
+    n[idx] = best[1]
+    return best[0], n
+
+
+def _velocity_candidates(kx, ky, w, n_cand=6, tol=0.05):
+    """Starting (vx, vy) (m/s, >= 0) from a grid over speed and direction: each line's best sign at each v, a
+    robust count of the lines missed by more than ``tol`` (relative); the best local minima, best first."""
+    kn = np.hypot(kx, ky)
+    lo = 0.8 * float(np.max(w / kn))
+    s = np.geomspace(lo, min(60.0 * lo, 5.0), 220)
+    phi = np.linspace(0.0, 0.5 * np.pi, 181)
+    vx = (s[:, None] * np.cos(phi)[None, :])[..., None]
+    vy = (s[:, None] * np.sin(phi)[None, :])[..., None]
+    ep = np.abs(np.abs(kx * vx + ky * vy) - w) / w
+    em = np.abs(np.abs(kx * vx - ky * vy) - w) / w
+    cost = np.minimum(np.square(np.minimum(ep, em) / tol), 1.0).sum(-1)
+    pad = np.pad(cost, 1, mode="edge")
+    neigh = np.lib.stride_tricks.sliding_window_view(pad, (3, 3)).reshape(cost.shape + (9,))
+    is_min = cost <= neigh.min(-1)
+    cand = np.argwhere(is_min & (cost <= cost.min() + 1.5))
+    order = np.argsort(cost[cand[:, 0], cand[:, 1]], kind="stable")
+    out = []
+    for i, j in cand[order]:
+        v = (s[i] * math.cos(phi[j]), s[i] * math.sin(phi[j]))
+        if all(math.hypot(v[0] - u[0], v[1] - u[1]) > 0.03 * math.hypot(*v) for u in out):
+            out.append(v)
+        if len(out) >= n_cand:
+            break
+    return out
+
+
+def _best_signs(kx, ky, w, vx, vy):
+    ep = np.abs(np.abs(kx * vx + ky * vy) - w)
+    em = np.abs(np.abs(kx * vx - ky * vy) - w)
+    return np.where(ep <= em, 1.0, -1.0)
+
+
+# --------------------------------------------------------------------------------------------------------
+# one fit
+
+
+class _Fit(NamedTuple):
+    theta: np.ndarray
+    cov: np.ndarray
+    chi2: float
+    dof: int
+    converged: bool
+    t: np.ndarray
+    z: np.ndarray          # (L,) largest |residual| of each slot's line
+
+
+def _args(dat: _Data, slots, family, harm, t, mw_extra=None):
+    """Residual data for the lines ``slots`` (indices into the line arrays, at most NMAX)."""
+    def pad(v, fill):
+        out = np.full(NMAX, fill, float)
+        out[:len(slots)] = v[slots]
+        return out
+
+    n = len(slots)
+    m = np.zeros(NMAX)
+    m[:n] = 1.0
+    hx, hy, hc = (pad(h.astype(float), 0.0) for h in (dat.hx, dat.hy, dat.hc))
+    mw = m.copy() if mw_extra is None else pad(mw_extra.astype(float), 0.0)
+    return dict(d1=dat.d1, d2=dat.d2, lgx=dat.lgx, lgy=dat.lgy, lrho=dat.lrho, family=float(family),
+                harm=pad(harm, 1.0), mx=hx, my=hy, mc=hc, mw=mw,
+                lrx=pad(dat.lrx, 0.0), srx=pad(dat.srx, 1.0), lry=pad(dat.lry, 0.0), sry=pad(dat.sry, 1.0),
+                lc=pad(dat.lc, 0.0), sc=pad(dat.sc, 1.0), w=pad(dat.w, 1.0), sw=pad(dat.sw, 1.0),
+                t=pad(t, 1.0))
+
+
+def _run(dat, slots, *, family, harm, t, a0, v0, kx0, ky0, free_a, free_v, free_kx, free_ky, mw=None):
+    """One Levenberg-Marquardt solve; kx0, ky0 (L,) rad/m starts (family: the fundamental's (2,))."""
+    n = len(slots)
+    theta = np.zeros(_NG + 2 * NMAX)
+    theta[0] = math.log(a0 / 1e-3)
+    theta[1], theta[2] = v0[0] / _V_UNIT, v0[1] / _V_UNIT
+    free = np.zeros(theta.size, bool)
+    free[0] = free_a
+    if family:
+        theta[3], theta[4] = math.log(kx0[0] / _K_UNIT), math.log(ky0[0] / _K_UNIT)
+        free[1] = free_v
+        free[3], free[4] = free_kx, free_ky
+    else:
+        free[1] = free[2] = free_v
+        theta[_NG:_NG + n] = np.log(np.nan_to_num(kx0[slots], nan=_K_UNIT) / _K_UNIT)
+        theta[_NG + NMAX:_NG + NMAX + n] = np.log(np.nan_to_num(ky0[slots], nan=_K_UNIT) / _K_UNIT)
+        free[_NG:_NG + n] = free_kx[slots]
+        free[_NG + NMAX:_NG + NMAX + n] = free_ky[slots]
+    args = _args(dat, slots, family, harm, t, mw)
+    res, r = _solve(theta, args, free)
+    r = r.reshape(4, NMAX)
+    z = np.zeros(dat.w.size)
+    z[slots] = np.abs(r[:, :n]).max(0)
+    n_data = int(np.sum(np.asarray([args["mx"], args["my"], args["mc"], args["mw"]]) > 0))
+    dof = max(n_data - int(free.sum()), 0)
+    return _Fit(np.asarray(res.theta), np.asarray(res.cov), float(res.chi2), dof, bool(res.converged),
+                np.asarray(t, float), z)
+
+
+def _p_value(chi2, dof):
+    """p-value of ``chi2``; an exactly determined fit (dof 0) should reach 0, and is judged as one dof."""
+    from scipy.stats import chi2 as chi2_dist
+
+    return float(chi2_dist.sf(chi2, max(dof, 1)))
+
+
+def _scale(fit: _Fit):
+    return max(1.0, fit.chi2 / fit.dof) if fit.dof > 0 else 1.0
+
+
+# --------------------------------------------------------------------------------------------------------
+# the public fit
+
+
+def _no_band(lines, d1, d2, n_lines):
+    so = np.asarray(lines.shallow_only)
+    if so.sum() > 0:
+        db = np.nanmax(np.asarray(lines.shallow_only_db, float))
+        p = int(np.nanargmax(np.asarray(lines.shallow_only_db, float)))
+        w = float(np.asarray(lines.shallow_only_omega)[p])
+        snr = 10.0 ** (db / 20.0)
+        k_max = math.log(snr) / (d2 - d1)
+        msg = (f"the texture is too fine for the probes' depths: the shallow probes hear {int(so.sum())} line(s) "
+               f"(strongest {db:.0f} dB above the noise at omega = {w:.1f} rad/s, {'xy'[p]} pair) but no deep probe "
+               f"hears one coherently; at that line SNR the deep probe hears only |k| < ln(SNR) / (d2 - d1) = "
+               f"{k_max:.0f} rad/m (wavelength > {2e3 * math.pi / k_max:.2f} mm)")
+    else:
+        msg = "no coherent line in either pair (0 usable lines): not a line texture, or lines not resolved"
+    return LineFit("no_band", msg, n_lines=n_lines)
+
+
+def _table(lines, dat, harm, used, dropped, kx, kx_err, ky, ky_err, sign):
+    return LineTable(dat.w, dat.sw, np.asarray(lines.heard, bool), np.asarray(lines.log_ratio, float),
+                     np.asarray(lines.log_ratio_err, float), np.asarray(lines.cross_log, float),
+                     np.asarray(lines.cross_err, float), np.asarray(harm, int), np.asarray(used, bool),
+                     np.asarray(dropped, bool), kx, kx_err, ky, ky_err, np.asarray(sign, float))
+
+
+def _single_k(dat, a, a_sd, comp):
+    """|k_s| and its error (propagating the ratio's error and sd(log a)) of pair ``comp`` (0 x, 1 y) lines."""
+    lr, s, g, h = ((dat.lrx, dat.srx, dat.lgx, dat.hx) if comp == 0 else (dat.lry, dat.sry, dat.lgy, dat.hy))
+    if a is None:
+        return np.full(dat.w.size, np.nan), np.full(dat.w.size, np.nan)
+    k = invert_ratio(lr - g, a, dat.d1, dat.d2)
+    dk_dr = (invert_ratio(lr - g + 1e-4, a, dat.d1, dat.d2) - invert_ratio(lr - g - 1e-4, a, dat.d1, dat.d2)) / 2e-4
+    da = 0.05
+    dk_da = (invert_ratio(lr - g, a * math.exp(da), dat.d1, dat.d2)
+             - invert_ratio(lr - g, a * math.exp(-da), dat.d1, dat.d2)) / (2 * da)
+    err = np.hypot(dk_dr * s, dk_da * (a_sd or 0.0))
+    return np.where(h, k, np.nan), np.where(h, err, np.nan)
+
+
+def fit_lines(lines, depths, *, gain_ratio=1.0, shallow_gain_ratio=1.0, contact_radius=None, velocity=None,
+              a_range=A_RANGE, ratio_floor: float = RATIO_FLOOR, cross_floor: float = CROSS_FLOOR) -> LineFit:
+    """Speeds and contact radius of a line texture from its lines (``spectral.peaks.Lines``): see the module.
+
+    depths: (d1, d2) probe depths, m. gain_ratio: known deep/shallow gain ratios (gx, gy) or one for both.
+    shallow_gain_ratio: known y1/x1 shallow gain ratio rho (None: the cross-pair levels are not used).
+    contact_radius: known a (m) or None. velocity: known (vx, vy) (m/s) or None. a_range: (lo, hi) plausible
+    contact radii (m) for profiling and marginalising an undetermined a. ratio_floor, cross_floor: error
+    floors (natural log). Failures come back as data (``LineFit.status``); bad arguments raise ValueError.
+    """
+    d1, d2 = (float(d) for d in depths)
+    if not (0.0 < d1 < d2) or not math.isfinite(d2):
+        raise ValueError(f"depths must satisfy 0 < d1 < d2, got {depths!r}")
+    g = np.broadcast_to(np.asarray(gain_ratio, float), (2,))
+    if not np.all(np.isfinite(g) & (g > 0)):
+        raise ValueError(f"gain_ratio must be positive, got {gain_ratio!r}")
+    if shallow_gain_ratio is not None and not (float(shallow_gain_ratio) > 0):
+        raise ValueError(f"shallow_gain_ratio must be positive or None, got {shallow_gain_ratio!r}")
+    if contact_radius is not None and not (float(contact_radius) > 0):
+        raise ValueError(f"contact_radius must be positive, got {contact_radius!r}")
+    lo_a, hi_a = (float(v) for v in a_range)
+    if not 0 < lo_a < hi_a:
+        raise ValueError(f"a_range must be 0 < lo < hi, got {a_range!r}")
+    if velocity is not None:
+        velocity = tuple(abs(float(v)) for v in velocity)
+        if len(velocity) != 2 or not all(math.isfinite(v) for v in velocity) or max(velocity) == 0:
+            raise ValueError(f"velocity must be two finite numbers, not both 0, got {velocity!r}")
+    n_lines = int(np.asarray(lines.omega).size)
+    heard = np.asarray(lines.heard, bool).reshape(2, -1)
+    if n_lines == 0 or not heard.any():
+        return _no_band(lines, d1, d2, n_lines)
+    if n_lines > 4 * NMAX:
+        raise ValueError(f"at most {4 * NMAX} lines, got {n_lines}")
+    dat = _measurements(lines, d1, d2, float(g[0]), float(g[1]),
+                        None if shallow_gain_ratio is None else float(shallow_gain_ratio), ratio_floor, cross_floor)
+    return _Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a)).run()
+
+
+class _Fitter:
+    """The decision logic of ``fit_lines`` on one record's measurements."""
+
+    def __init__(self, lines, dat: _Data, a_known, v_known, a_range):
+        self.lines, self.dat = lines, dat
+        self.a_known, self.v_known = a_known, v_known
+        self.a_grid = np.geomspace(a_range[0], a_range[1], 9) if a_known is None else np.asarray([a_known])
+        self.n = dat.w.size
+        inv_x = dat.hx | dat.hc
+        inv_y = dat.hy | dat.hc
+        n_meas = dat.hx.astype(int) + dat.hy + dat.hc
+        self.two_d = inv_x & inv_y & (n_meas >= 2) & (dat.hx | dat.hy)
+        if v_known is not None:
+            self.two_d = (dat.hx | dat.hy)
+        self.inv_x, self.inv_y = inv_x, inv_y
+
+    # ---- helpers
+    def _slots(self, sel):
+        idx = np.flatnonzero(sel)
+        if idx.size > NMAX:       # keep the best measured
+            score = -(np.where(self.dat.hx, self.dat.srx, 0) + np.where(self.dat.hy, self.dat.sry, 0))[idx]
+            idx = np.sort(idx[np.argsort(score)[::-1][:NMAX]])
+        return idx
+
+    def _a_sd(self, fit):
+        return math.sqrt(max(fit.cov[0, 0], 0.0) * _scale(fit))
+
+    # ---- the 2-D model
+    def _fit_2d(self, slots, a0, free_a, v_start=None, n_cand=6):
+        """Best 2-D fit from the velocity candidates at a0 (m); returns a list of fits (best first)."""
+        dat = self.dat
+        sel = np.zeros(self.n, bool)
+        sel[slots] = True
+        kx, ky = _start_k(dat, a0, sel)
+        vk = self.v_known
+        free_kx = sel & (self.inv_x | ((vk is not None) and vk[0] > 0))
+        free_ky = sel & (self.inv_y | ((vk is not None) and vk[1] > 0))
+        # a component that no level measures starts where omega puts it (known v) or at 1/mm
+        kx = np.where(np.isnan(kx) & sel, 1e3, kx)
+        ky = np.where(np.isnan(ky) & sel, 1e3, ky)
+        mw = sel & free_kx & free_ky
+        if vk is not None:
+            starts = [vk]
+        elif v_start is not None:
+            starts = [v_start]
+        else:
+            use = sel & self.two_d
+            starts = _velocity_candidates(kx[use], ky[use], dat.w[use], n_cand=n_cand)
+        fits = []
+        for v0 in starts:
+            t = _best_signs(kx, ky, dat.w, *v0)
+            fit = None
+            for _ in range(3):
+                fit = _run(dat, slots, family=False, harm=np.ones(self.n), t=t, a0=a0, v0=v0, kx0=kx, ky0=ky,
+                           free_a=free_a, free_v=vk is None, free_kx=free_kx, free_ky=free_ky, mw=mw)
+                th = fit.theta
+                kx1 = np.full(self.n, np.nan)
+                ky1 = np.full(self.n, np.nan)
+                kx1[slots] = _K_UNIT * np.exp(th[_NG:_NG + len(slots)])
+                ky1[slots] = _K_UNIT * np.exp(th[_NG + NMAX:_NG + NMAX + len(slots)])
+                v1 = (abs(th[1]) * _V_UNIT, abs(th[2]) * _V_UNIT)
+                # a sign flip of vx or vy in the fit is a flip of every t
+                flip = np.sign(th[1]) * np.sign(th[2]) if th[1] * th[2] != 0 else 1.0
+                t_new = _best_signs(kx1, ky1, dat.w, *v1)
+                if np.array_equal(t_new[slots], (t * flip)[slots]):
+                    break
+                t, v0, kx, ky, a0 = t_new, v1, kx1, ky1, 1e-3 * math.exp(th[0])
+            fits.append(fit)
+        fits.sort(key=lambda f: f.chi2)
+        return fits
+
+    # ---- the family model
+    def _fit_family(self, slots, harm, a0, free_a):
+        dat = self.dat
+        sel = np.zeros(self.n, bool)
+        sel[slots] = True
+        kx, ky = _start_k(dat, a0, sel)
+        fx = np.nanmedian(kx[sel] / harm[sel]) if np.isfinite(kx[sel]).any() else 1e3
+        fy = np.nanmedian(ky[sel] / harm[sel]) if np.isfinite(ky[sel]).any() else 1e3
+        has_x, has_y = bool(self.inv_x[sel].any()), bool(self.inv_y[sel].any())
+        both = has_x and has_y
+        k0 = math.hypot(fx, fy)
+        w0 = np.median(dat.w[sel] / harm[sel])
+        v0 = (w0 / k0, 0.0)
+        mw = sel if both else np.zeros(self.n, bool)
+        return _run(dat, slots, family=True, harm=harm, t=np.ones(self.n), a0=a0, v0=v0, kx0=np.asarray([fx]),
+                    ky0=np.asarray([fy]), free_a=free_a, free_v=both, free_kx=has_x, free_ky=has_y, mw=mw)
+
+    # ---- profile over a, then free
+    def _profile(self, fitfn):
+        """fitfn(a0, free_a, final) -> list of fits. Returns (the fits with a free or given, best first; the
+        profile [(a, best fit at a fixed a)] over ``a_grid``)."""
+        if self.a_known is not None:
+            fits = fitfn(float(self.a_known), False, True)
+            return fits, [(float(self.a_known), fits[0])] if fits else []
+        a0 = self._level_scan()
+        if a0 is not None:
+            # the levels fix a: start there; the profile only where the fit then leaves a undetermined
+            fits = fitfn(a0, True, True)
+            if fits and fits[0].converged and 0 < self._a_sd(fits[0]) <= A_DETERMINED:
+                return fits, []
+        prof = []
+        for a in self.a_grid:
+            fits = fitfn(float(a), False, False)
+            if fits:
+                prof.append((float(a), fits[0]))
+        if not prof:
+            return [], prof
+        a_best = min(prof, key=lambda p: p[1].chi2)[0]
+        return fitfn(a_best, True, True), prof
+
+    def _level_scan(self):
+        """The contact radius (m) that best explains the lines measured three times (both ratios and the cross
+        level: each fixes a by itself), on a grid of 0.2-20 mm; None where no line is."""
+        dat = self.dat
+        full = self.two_d & dat.hx & dat.hy & dat.hc
+        if not full.any():
+            return None
+        grid = np.geomspace(0.2e-3, 20e-3, 41)
+        cost = []
+        for a in grid:
+            kx = invert_ratio(dat.lrx[full] - dat.lgx, a, dat.d1, dat.d2)
+            ky = invert_ratio(dat.lry[full] - dat.lgy, a, dat.d1, dat.d2)
+            z = (dat.lrho + _cross_f(ky, a, dat.d1, dat.d2) - _cross_f(kx, a, dat.d1, dat.d2) - dat.lc[full]) / dat.sc[full]
+            cost.append(float(np.sum(np.log1p(np.square(z) / 9.0))))          # robust to a blended line
+        return float(grid[int(np.argmin(cost))])
+
+    def run(self) -> LineFit:
+        dat = self.dat
+        base = dict(n_lines=self.n)
+        if self.v_known is None and not self.two_d.any():
+            return self._single_pair_only()
+        # one family?
+        w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, self.two_d)
+        if self.v_known is None and w0 is not None:
+            # single-pair lines that are harmonics of the family join it (they carry its a)
+            extra = (dat.hx | dat.hy) & ~self.two_d
+            n_extra = np.rint(dat.w / w0)
+            tol = np.maximum(4.0 * dat.sw, 0.3 * dat.d_omega)
+            join = extra & (n_extra >= 1) & (n_extra <= MAX_HARMONIC) & (np.abs(dat.w - n_extra * w0) <= tol)
+            harm = np.where(join, n_extra, harm)
+            fam_sel = self.two_d | join
+            slots = self._slots(fam_sel)
+            fits, prof = self._profile(lambda a, fa, final: [self._fit_family(slots, harm, a, fa)])
+            fit = self._drop_outliers(fits[0], lambda s: self._fit_family(s, harm, 1e-3 * math.exp(fits[0].theta[0]),
+                                                                          self.a_known is None), slots)
+            if _p_value(fit[0].chi2, fit[0].dof) >= P_POOR or self.two_d.sum() == 1:
+                return self._grating_result(fit, prof, harm, **base)
+        # two or more directions
+        slots = self._slots(self.two_d)
+        if self.v_known is None and len(slots) < 2:
+            return LineFit("poor_fit", "the lines are not one family and fewer than two are measured in both "
+                           "components", **base)
+        fits, prof = self._profile(lambda a, fa, final: self._fit_2d(slots, a, fa, n_cand=6 if final else 2))
+        if not fits:
+            return LineFit("poor_fit", "no fit", **base)
+        best = self._drop_outliers(fits[0], lambda s: self._fit_2d(s, 1e-3 * math.exp(fits[0].theta[0]),
+                                                                   self.a_known is None,
+                                                                   v_start=(abs(fits[0].theta[1]) * _V_UNIT,
+                                                                            abs(fits[0].theta[2]) * _V_UNIT))[0],
+                                   slots)
+        return self._multi_result(best, fits[1:], prof, **base)
+
+    def _drop_outliers(self, fit, refit, slots):
+        """Drop the worst line (z > DROP_Z) while the fit is poor, at most a quarter of the lines, keeping dof >= 1."""
+        dropped = np.zeros(self.n, bool)
+        slots = np.asarray(slots)
+        max_drop = len(slots) // 4
+        while (_p_value(fit.chi2, fit.dof) < P_POOR and dropped.sum() < max_drop and fit.dof >= 2):
+            worst = int(np.argmax(np.where(np.isin(np.arange(self.n), slots), fit.z, -1)))
+            if fit.z[worst] < DROP_Z:
+                break
+            dropped[worst] = True
+            slots = slots[slots != worst]
+            fit = refit(slots)
+        return fit, slots, dropped
+
+    # ---- results
+    def _k_table(self, fit, slots, family, harm):
+        n = self.n
+        kx, ky, kxe, kye = (np.full(n, np.nan) for _ in range(4))
+        sc = _scale(fit)
+        cov = fit.cov * sc
+        if family:
+            lx, ly = fit.theta[3], fit.theta[4]
+            for j in slots:
+                kx[j] = harm[j] * _K_UNIT * math.exp(lx)
+                ky[j] = harm[j] * _K_UNIT * math.exp(ly)
+                kxe[j] = kx[j] * math.sqrt(max(cov[3, 3], 0.0))
+                kye[j] = ky[j] * math.sqrt(max(cov[4, 4], 0.0))
+        else:
+            for i, j in enumerate(slots):
+                kx[j] = _K_UNIT * math.exp(fit.theta[_NG + i])
+                ky[j] = _K_UNIT * math.exp(fit.theta[_NG + NMAX + i])
+                kxe[j] = kx[j] * math.sqrt(max(cov[_NG + i, _NG + i], 0.0))
+                kye[j] = ky[j] * math.sqrt(max(cov[_NG + NMAX + i, _NG + NMAX + i], 0.0))
+        # components no level measures stay undetermined
+        unk_x = ~self.inv_x if self.v_known is None else np.zeros(n, bool)
+        unk_y = ~self.inv_y if self.v_known is None else np.zeros(n, bool)
+        kx[unk_x], kxe[unk_x], ky[unk_y], kye[unk_y] = np.nan, np.nan, np.nan, np.nan
+        return kx, kxe, ky, kye
+
+    def _fill_single(self, kx, kxe, ky, kye, a, a_sd):
+        """|k_s| of lines outside the fit from their own pair's ratio at the fitted a."""
+        sx, sxe = _single_k(self.dat, a, a_sd, 0)
+        sy, sye = _single_k(self.dat, a, a_sd, 1)
+        fill_x, fill_y = np.isnan(kx) & np.isfinite(sx), np.isnan(ky) & np.isfinite(sy)
+        kx, kxe = np.where(fill_x, sx, kx), np.where(fill_x, sxe, kxe)
+        ky, kye = np.where(fill_y, sy, ky), np.where(fill_y, sye, kye)
+        return kx, kxe, ky, kye
+
+    def _a_report(self, fit, prof):
+        """(a, a_err, source, marginalise?)"""
+        if self.a_known is not None:
+            return float(self.a_known), 0.0, "given", False
+        sd = self._a_sd(fit)
+        if fit.converged and 0 < sd <= A_DETERMINED:
+            a = 1e-3 * math.exp(fit.theta[0])
+            return a, a * sd, "fit", False
+        return None, None, "marginalised", True
+
+    @staticmethod
+    def _mixture(values, errs, chi2s):
+        """Mean and sd of a mixture over the a profile, weighted by exp(-chi2 / 2)."""
+        c = np.asarray(chi2s, float)
+        wts = np.exp(-(c - c.min()) / 2.0)
+        wts /= wts.sum()
+        v = np.asarray(values, float)
+        mean = float(np.sum(wts * v))
+        var = float(np.sum(wts * (np.square(errs) + np.square(v - mean))))
+        return mean, math.sqrt(var), float(np.min(v - 2 * np.asarray(errs))), float(np.max(v + 2 * np.asarray(errs)))
+
+    def _grating_result(self, fitted, prof, harm, **base):
+        fit, slots, dropped = fitted
+        dat = self.dat
+        sc = _scale(fit)
+        cov = fit.cov * sc
+        has_x, has_y = bool(self.inv_x[slots].any()), bool(self.inv_y[slots].any())
+        a, a_err, a_src, marg = self._a_report(fit, prof)
+        kx, kxe, ky, kye = self._k_table(fit, slots, True, harm)
+        kx, kxe, ky, kye = self._fill_single(kx, kxe, ky, kye, a, None if a is None else a_err / a)
+        used = np.isin(np.arange(self.n), slots)
+        table = _table(self.lines, dat, np.where(used, harm, 0), used, dropped, kx, kxe, ky, kye,
+                       np.where(used, 1.0, 0.0))
+        p = _p_value(fit.chi2, fit.dof)
+        stats = dict(chi2=fit.chi2, redchi=fit.chi2 / fit.dof if fit.dof else float("nan"), dof=fit.dof,
+                     n_used=len(slots), n_dropped=int(dropped.sum()), lines=table, texture="grating")
+        lx, ly = fit.theta[3], fit.theta[4]
+        ang = math.degrees(math.atan2(math.exp(ly), math.exp(lx)))
+        sc_ = math.sin(math.radians(ang)) * math.cos(math.radians(ang))
+        ang_err = math.degrees(abs(sc_) * math.sqrt(max(cov[3, 3] + cov[4, 4] - 2 * cov[3, 4], 0.0)))
+        w0 = float(np.median(dat.w[slots] / harm[slots]))
+        if not (has_x and has_y):
+            comp = "x" if has_x else "y"
+            k_s = _K_UNIT * math.exp(lx if has_x else ly)
+            hi = w0 / k_s if a is not None else None
+            msg = (f"one family of lines heard by the {comp} pair only: |k{comp}| = {k_s:.0f} rad/m"
+                   + ("" if a is not None else " (a not determined: |k| depends on it)")
+                   + "; the other component is unknown, so the speed along the normal is only bounded "
+                   f"(v_n <= omega0 / |k{comp}|" + (f" = {hi:.4g} m/s)" if hi else ")")
+                   + "; vx, vy undetermined (aperture problem)")
+            return LineFit("undetermined", msg, a=a, a_err=a_err, a_source=a_src,
+                           v_n_bounds=(0.0, hi) if hi else None, **stats, **base)
+        v_n, v_n_err = fit.theta[1] * _V_UNIT, math.sqrt(max(cov[1, 1], 0.0)) * _V_UNIT
+        bounds = None
+        if marg:
+            vals = [(f.theta[1] * _V_UNIT, math.sqrt(max(f.cov[1, 1] * _scale(f), 0.0)) * _V_UNIT, f.chi2)
+                    for _, f in prof]
+            v_n, v_n_err, lo, hi = self._mixture(*zip(*vals))
+            bounds = (max(lo, 0.0), hi)
+        status = "poor_fit" if p < P_POOR else "undetermined"
+        if marg and v_n_err > MAX_REL_ERR * abs(v_n) and p >= P_POOR:
+            msg = (f"one family of parallel lines (a grating) whose lines do not determine a: over a in "
+                   f"[{self.a_grid[0] * 1e3:.1g}, {self.a_grid[-1] * 1e3:.1g}] mm the speed along its normal spans "
+                   f"{bounds[0]:.3g}-{bounds[1]:.3g} m/s (undetermined); vx, vy undetermined (aperture problem)")
+            return LineFit(status, msg, a=None, a_source=a_src, v_n_bounds=bounds, normal_angle=ang,
+                           normal_angle_err=ang_err, **stats, **base)
+        msg = (f"one family of parallel lines (a grating, {len(slots)} line(s), harmonics "
+               f"{sorted(set(int(h) for h in harm[slots]))}): v_n = {v_n:.4g} +/- {v_n_err:.2g} m/s along the normal at "
+               f"{ang:.1f} deg (or its mirror image at -{ang:.1f} deg); the component along the ridges, hence vx, vy, "
+               "is undetermined (aperture problem)" + ("; a marginalised over its plausible range" if marg else ""))
+        if p < P_POOR:
+            return LineFit(status, f"the model does not explain the line(s) of this family: chi2 {fit.chi2:.1f} "
+                           f"for {fit.dof} dof (p = {p:.1g}); its best fit would be v_n = {v_n:.4g} m/s along "
+                           f"{ang:.1f} deg", **stats, **base)
+        return LineFit(status, msg, a=a, a_err=a_err, a_source=a_src, v_n=v_n, v_n_err=v_n_err,
+                       v_n_bounds=bounds, normal_angle=ang, normal_angle_err=ang_err, **stats, **base)
+
+    def _multi_result(self, fitted, others, prof, _resolved="", **base):
+        fit, slots, dropped = fitted
+        base_resolved = _resolved
+        dat = self.dat
+        cov = fit.cov * _scale(fit)
+        a, a_err, a_src, marg = self._a_report(fit, prof)
+        kx, kxe, ky, kye = self._k_table(fit, slots, False, np.ones(self.n))
+        kx, kxe, ky, kye = self._fill_single(kx, kxe, ky, kye, a, None if a is None else a_err / a)
+        used = np.isin(np.arange(self.n), slots)
+        flip = np.sign(fit.theta[1]) * np.sign(fit.theta[2]) if fit.theta[1] * fit.theta[2] != 0 else 1.0
+        table = _table(self.lines, dat, np.zeros(self.n), used, dropped, kx, kxe, ky, kye,
+                       np.where(used, fit.t * flip, 0.0))
+        p = _p_value(fit.chi2, fit.dof)
+        stats = dict(chi2=fit.chi2, redchi=fit.chi2 / fit.dof if fit.dof else float("nan"), dof=fit.dof,
+                     n_used=len(slots), n_dropped=int(dropped.sum()), lines=table, texture="multi")
+        vx, vy = abs(fit.theta[1]) * _V_UNIT, abs(fit.theta[2]) * _V_UNIT
+        vxe, vye = (math.sqrt(max(cov[i, i], 0.0)) * _V_UNIT for i in (1, 2))
+        known_v = self.v_known is not None
+        if known_v:
+            vx, vy = self.v_known
+            vxe = vye = 0.0
+        # equally good sign choices with different speeds
+        rivals = []
+        for f in others:
+            if f.chi2 <= fit.chi2 + AMBIGUITY_CHI2:
+                ux, uy = abs(f.theta[1]) * _V_UNIT, abs(f.theta[2]) * _V_UNIT
+                if any(abs(u - v) > 3 * max(e, 1e-12) for u, v, e in ((ux, vx, vxe), (uy, vy, vye))):
+                    if all(abs(ux - r[1]) > 1e-3 * (ux + 1e-9) or abs(uy - r[2]) > 1e-3 * (uy + 1e-9)
+                           for r in rivals):
+                        rivals.append((f, ux, uy))
+        resolved = ""
+        if rivals and not known_v:
+            # combination lines (k_i +/- k_j of the fitted modes, at omega_i +/- omega_j) heard outside the fit
+            # tell the sign choices apart: each choice predicts their components differently
+            scores = [self._combination_score(f, slots) for f in [fit] + [r[0] for r in rivals]]
+            chi, n_m = zip(*scores)
+            order = np.argsort(chi)
+            win = int(order[0])
+            if (n_m[win] > 0 and _p_value(chi[win], n_m[win]) >= P_POOR
+                    and all(chi[i] > chi[win] + 9.0 for i in order[1:])):
+                resolved = (f"; {len(rivals) + 1} sign choices fit the lines, decided by {n_m[win]} measurement(s) of "
+                            f"combination lines (chi2 {chi[win]:.1f} against >= {chi[order[1]]:.1f})")
+                if win > 0:
+                    fit = rivals[win - 1][0]
+                    return self._multi_result((fit, slots, dropped), [], prof, _resolved=resolved, **base)
+                rivals = []
+        resolved = resolved or base_resolved
+        alts = [(vx, vy, fit.chi2)] + [(r[1], r[2], r[0].chi2) for r in rivals]
+        ambiguous = bool(rivals)
+        bounds = None
+        if marg and not known_v:
+            vals_x = [(abs(f.theta[1]) * _V_UNIT, math.sqrt(max(f.cov[1, 1] * _scale(f), 0)) * _V_UNIT, f.chi2)
+                      for _, f in prof]
+            vals_y = [(abs(f.theta[2]) * _V_UNIT, math.sqrt(max(f.cov[2, 2] * _scale(f), 0)) * _V_UNIT, f.chi2)
+                      for _, f in prof]
+            vx, vxe, lox, hix = self._mixture(*zip(*vals_x))
+            vy, vye, loy, hiy = self._mixture(*zip(*vals_y))
+            bounds = ((max(lox, 0.0), hix), (max(loy, 0.0), hiy))
+        common = dict(a=a, a_err=a_err, a_source=a_src, ambiguous=ambiguous,
+                      alternatives=tuple(alts) if ambiguous else (), **stats, **base)
+        if p < P_POOR:
+            return LineFit("poor_fit", f"the model does not explain the lines: chi2 {fit.chi2:.1f} for {fit.dof} dof "
+                           f"(p = {p:.1g}) after dropping {int(dropped.sum())} line(s)",
+                           **dict(common, a=None, a_err=None, a_source=None))
+        if ambiguous:
+            alt_txt = "; ".join(f"({u * 100:.3g}, {w * 100:.3g}) cm/s chi2 {c:.1f}" for u, w, c in alts)
+            return LineFit("undetermined", f"{len(alts)} sign choices of the lines fit equally well with different "
+                           f"speeds (|vx|, |vy|): {alt_txt}; more lines (or combination lines) would decide",
+                           **common)
+        if marg and not known_v and (vxe > MAX_REL_ERR * math.hypot(vx, vy) or vye > MAX_REL_ERR * math.hypot(vx, vy)):
+            return LineFit("undetermined", f"the lines do not determine a, and over a in [{self.a_grid[0] * 1e3:.1g}, "
+                           f"{self.a_grid[-1] * 1e3:.1g}] mm the speeds span |vx| {bounds[0][0]:.3g}-{bounds[0][1]:.3g}, "
+                           f"|vy| {bounds[1][0]:.3g}-{bounds[1][1]:.3g} m/s", speed_bounds=bounds, **common)
+        msg = (f"{len(slots)} lines in two or more directions: |vx| = {vx * 100:.4g} +/- {vxe * 100:.2g}, "
+               f"|vy| = {vy * 100:.4g} +/- {vye * 100:.2g} cm/s"
+               + (f", a = {a * 1e3:.3g} +/- {a_err * 1e3:.2g} mm" if a is not None else ", a marginalised")
+               + (f"; {int(dropped.sum())} line(s) dropped as outliers" if dropped.any() else "") + resolved)
+        return LineFit("ok", msg, vx=vx, vx_err=vxe, vy=vy, vy_err=vye, speed_bounds=bounds, **common)
+
+    def _combination_score(self, fit, slots):
+        """(chi2, number of measurements) of the lines outside the fit that sit at |n omega_i + m omega_j|
+        (|n| + |m| <= 3, within 4 sigma) of two fitted modes i, j, predicted as k = n k_i + m k_j with the
+        signed wavevectors of this sign choice (k_i . v = +omega_i); per line the best such combination."""
+        dat = self.dat
+        th = fit.theta
+        a = 1e-3 * math.exp(th[0])
+        v = np.array([th[1], th[2]]) * _V_UNIT
+        n = len(slots)
+        kx = _K_UNIT * np.exp(th[_NG:_NG + n])
+        ky = _K_UNIT * np.exp(th[_NG + NMAX:_NG + NMAX + n])
+        kv = np.stack([kx, fit.t[slots] * ky], 1)                     # the model's (|kx|, t |ky|)
+        kv *= np.where(kv @ v >= 0, 1.0, -1.0)[:, None]                 # k_i . v = +omega_i
+        lr_tab, f_tab = _tables(a, dat.d1, dat.d2)
+        lk = np.log(_K_GRID)
+
+        def at(tab, k):
+            return np.interp(np.log(np.maximum(k, _K_GRID[0])), lk, tab)
+
+        combos = [(p, q) for p in range(-3, 4) for q in range(-3, 4) if 0 < abs(p) + abs(q) <= 3 and p != 0 and q != 0]
+        outside = np.flatnonzero(~np.isin(np.arange(self.n), slots) & (dat.hx | dat.hy | dat.hc))
+        total, n_meas = 0.0, 0
+        for u in outside:
+            best = None
+            for i in range(n):
+                for j in range(i + 1, n):
+                    for p, q in combos:
+                        k = p * kv[i] + q * kv[j]
+                        w = abs(k @ v)
+                        tol = 4.0 * (dat.sw[u] + abs(p) * dat.sw[slots[i]] + abs(q) * dat.sw[slots[j]])
+                        if abs(w - dat.w[u]) > tol:
+                            continue
+                        kx_u, ky_u = abs(k[0]), abs(k[1])
+                        z = []
+                        if dat.hx[u]:
+                            z.append((at(lr_tab, kx_u) + dat.lgx - dat.lrx[u]) / dat.srx[u])
+                        if dat.hy[u]:
+                            z.append((at(lr_tab, ky_u) + dat.lgy - dat.lry[u]) / dat.sry[u])
+                        if dat.hc[u]:
+                            z.append((dat.lrho + at(f_tab, ky_u) - at(f_tab, kx_u) - dat.lc[u]) / dat.sc[u])
+                        c = float(np.sum(np.square(z)))
+                        if best is None or c < best[0]:
+                            best = (c, len(z))
+            if best is not None:
+                total += best[0]
+                n_meas += best[1]
+        return total, n_meas
+
+    def _single_pair_only(self) -> LineFit:
+        """No line measured in both components: each pair's harmonics may still give a and |k_s|."""
+        dat = self.dat
+        out = []
+        for comp, h in ((0, dat.hx), (1, dat.hy)):
+            w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, h)
+            if w0 is not None and len(set(harm[h].astype(int))) >= 2:
+                out.append((int(h.sum()), comp, harm))
+        a = a_err = None
+        a_src = "given" if self.a_known is not None else None
+        if self.a_known is not None:
+            a, a_err = float(self.a_known), 0.0
+        elif out:
+            _, comp, harm = max(out)
+            slots = self._slots(harm > 0)
+            fits, _ = self._profile(lambda a0, fa, final: [self._fit_family(slots, harm, a0, fa)])
+            if fits and fits[0].converged and 0 < self._a_sd(fits[0]) <= A_DETERMINED:
+                a = 1e-3 * math.exp(fits[0].theta[0])
+                a_err, a_src = a * self._a_sd(fits[0]), "fit"
+        nan = np.full(self.n, np.nan)
+        kx, kxe, ky, kye = self._fill_single(nan, nan, nan.copy(), nan.copy(), a, None if a is None else a_err / a)
+        table = _table(self.lines, dat, np.zeros(self.n), np.zeros(self.n, bool), np.zeros(self.n, bool),
+                       kx, kxe, ky, kye, np.zeros(self.n))
+        msg = (f"every line is heard by one pair only ({int(dat.hx.sum())} x, {int(dat.hy.sum())} y, no cross-pair "
+               "level): each gives one wavevector component and the other is unknown, so the speeds are "
+               "undetermined" + ("" if a is not None else " (and a is not determined)"))
+        # one family heard by one pair: |k| >= |k_s|, so v_n <= omega0 / |k_s| (with a over its range if unknown)
+        texture, bounds = "none", None
+        for comp, h in ((0, dat.hx), (1, dat.hy)):
+            w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, h)
+            if w0 is None or (dat.hx | dat.hy)[~h].any():
+                continue
+            lr, g = (dat.lrx, dat.lgx) if comp == 0 else (dat.lry, dat.lgy)
+            j = int(np.flatnonzero(h)[0])
+            radii = [a] if a is not None else list(self.a_grid)
+            k_s = min(float(invert_ratio(lr[j] - g, r, dat.d1, dat.d2)) / harm[j] for r in radii)
+            texture, bounds = "grating", (0.0, w0 / k_s)
+            msg += (f"; one family in the {'xy'[comp]} pair: the speed along its normal is at most omega0 / "
+                    f"|k{'xy'[comp]}| = {w0 / k_s:.4g} m/s" + ("" if a is not None else " over a in the plausible range"))
+        return LineFit("undetermined", msg, a=a, a_err=a_err, a_source=a_src, v_n_bounds=bounds, texture=texture,
+                       n_lines=self.n, lines=table)
