@@ -107,15 +107,20 @@ def test_no_band_is_reported_not_raised():
     assert "no coherent texture line or band" in res.message
 
 
-def test_a_grating_is_named_as_lines_not_fitted():
+def test_a_grating_gives_its_normal_speed_and_leaves_the_ridge_component_undetermined():
+    """A grating heard by both pairs: the smooth models find no band; the line model gives the speed along
+    the lines' normal, the normal's angle and a, and vx, vy undetermined (the aperture problem)."""
     scene = Scene(texture=Grating(pitch=2e-3, angle=0.5), velocity=(0.03, 0.02), contact_radius=1.5e-3,
                   duration=4.0, snr_db=50.0, seed=1)
     res = fit_recording(simulate(scene))
-    line_hz = 2 * np.pi / 2e-3 * (0.03 * np.cos(0.5) + 0.02 * np.sin(0.5)) / (2 * np.pi)     # k . v / 2 pi
-    assert res.status == "no_band" and res.vx is None
-    assert "deep x probe holds 1 coherent line" in res.message and "periodic texture" in res.message
-    hz = float(res.message.split("strongest at ")[1].split(" Hz")[0])
-    assert abs(hz - line_hz) < 2.5, (hz, line_hz)          # the nearest 3.9 Hz bin of a 4 s record
+    v_n = 0.03 * np.cos(0.5) + 0.02 * np.sin(0.5)
+    assert res.status == "undetermined" and res.texture == "grating" and res.model == "lines"
+    assert res.vx is None and res.vy is None and "aperture" in res.message
+    assert abs(res.v_normal - v_n) < min(3 * res.v_normal_err, 0.03 * v_n)
+    assert abs(res.normal_angle - np.degrees(0.5)) < max(3 * res.normal_angle_err, 1.0)
+    assert abs(res.a - 1.5e-3) < 3 * res.a_err
+    row = res.to_record()
+    assert row["status"] == "undetermined" and row["vx"] is None and row["v_normal"] == res.v_normal
 
 
 def test_bad_input_raises_one_line_naming_the_source():

@@ -269,7 +269,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     from ..inference.options import options_from_file, settings_of
-    from ..inference.fit import record_of, refine
+    from ..inference.fit import record_of, refine, with_line_model
     from ..inference.result import result_from_summary
     from ..inference import run
     from ..inference.select import model_name
@@ -305,7 +305,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 rows[pos + k] = _error_row(info.path, i, err.code, str(err), model, tag)
                 continue
             good.append((pos + k, info.path, i))
-            metas.append((vel, info.curvature_radius))
+            metas.append((vel, info.curvature_radius, block[k], info.fs, file_options))
         pos += stop - start
         t0 = time.perf_counter()
         timings["spectra"] += t0 - t1
@@ -313,12 +313,14 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         t1 = time.perf_counter()
         try:
             refined = [refine(r, settings, s, options) for r, s in zip(recs, run.fit_many(recs, settings, size))]
-            for (p, src, i), r, f, (vel, radius) in zip(good, recs, refined, metas):
+            for (p, src, i), r, f, (vel, radius, signals, fs, opts) in zip(good, recs, refined, metas):
                 s = f.summary
                 res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
                                           model=model_name(s.free, vel is not None), segments=r.seg)
                 res.texture, res.texture_margin = f.texture, f.texture_margin
                 res.message = "; ".join(m for m in (res.message, f.texture_note) if m)
+                res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,
+                                      source=src)
                 res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
                 rows[p] = {**res.to_record(), "options": tag}
         except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume

@@ -37,10 +37,13 @@ from .problem import FitProblem
 from .residuals import residuals as joint_residuals
 from .result import A_BOUNDS, V_BOUNDS, FitResult, result_from_summary, set_contact_depth, texture_sections
 
-__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "refine", "Refined", "settle", "NO_XY_MESSAGE"]
+__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "refine", "Refined", "settle",
+           "with_line_model", "result_from_lines", "NO_XY_MESSAGE"]
 
 #: more solves (``core.ITERATIONS[2]`` iterations each) for a fit that has not settled
 _MORE_SOLVES = 3
+#: a smooth fit this far off (reduced chi-square) says nothing: a line model that found lines replaces it
+_GROSS_REDCHI = 100.0
 _I = {name: i for i, name in enumerate(PARAMS)}
 
 
@@ -146,7 +149,85 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
     except TactileInputError as err:
         raise err.with_source(src) from None
     res = fit_record(r, options, curvature_radius=one.curvature_radius)
+    res = with_line_model(res, one.signals, one.fs, one.depths, options, curvature_radius=one.curvature_radius,
+                          source=src)
     res.file, res.index, res.truth, res.precision = rec.source, record, dict(one.truth), precision
+    return res
+
+
+def with_line_model(res: FitResult, signals, fs: float, depths, options: FitOptions, *, curvature_radius=None,
+                    source: str | None = None) -> FitResult:
+    """``res`` of the smooth texture models, or the line model's result where they find no band or do not fit.
+
+    A grating, a wire net or a surface of few strong features has a spectrum of lines
+    (``spectral.peaks``, on spectra that are not prewhitened: prewhitening notches a line) that
+    ``inference.line_texture`` turns into wavenumbers and speeds. Where the smooth fit is not ``ok``
+    (``no_band``, ``not_converged``, ``poor_fit``), the line model's result replaces it when it
+    determines a speed (both, or a grating's speed along its normal), and replaces a ``no_band`` or
+    ``not_converged`` one when it says what the lines leave undetermined; a ``poor_fit`` otherwise
+    stays, its message saying what the lines show (a texture too fine for the probes' depths, lines
+    heard by one pair only). ``fit`` and ``batch`` both call this.
+    signals: (4, N); fs: Hz; depths: (d1, d2) m.
+    """
+    if res.status not in (Status.NO_BAND, Status.POOR_FIT, Status.NOT_CONVERGED) or options.texture is not None:
+        return res
+    from ..spectral.peaks import find_lines
+    from .line_texture import fit_lines
+
+    try:
+        lines = find_lines(np.asarray(signals, float), float(fs), source=source)
+        fit = fit_lines(lines, depths, gain_ratio=known_gains(options), velocity=options.velocity,
+                        shallow_gain_ratio=1.0 if options.window in (None, "gaussian") else None)
+    except Exception as err:  # noqa: BLE001 - the line model is a second opinion: never let it sink the fit
+        res.warnings.append(f"line model not run: {type(err).__name__}: {err}")
+        return res
+    determined = fit.status == "ok" or (fit.status == "undetermined" and fit.v_n is not None)
+    # a poor smooth fit keeps its (inflated) errors unless it is grossly wrong: lines dominate the spectra
+    gross = res.status == Status.POOR_FIT and (res.redchi or 0.0) > _GROSS_REDCHI
+    if determined or ((res.status != Status.POOR_FIT or gross) and fit.status == "undetermined"):
+        return result_from_lines(fit, options, curvature_radius=curvature_radius, smooth=res)
+    if res.status == Status.NO_BAND:            # the line model's reading of the raw spectra replaces the diagnosis
+        found_none = fit.n_lines == 0 and not np.any(np.asarray(lines.shallow_only))
+        diagnosis = "; ".join(res.message.split("; ")[1:]) if found_none else ""
+        res.message = "; ".join(m for m in (f"only {res.n_bins} usable bins for a smooth texture", fit.message,
+                                            diagnosis) if m)
+    else:
+        res.message = "; ".join(m for m in (res.message, f"line model: {fit.message}") if m)
+    return res
+
+
+def result_from_lines(fit, options: FitOptions, *, curvature_radius=None, smooth: FitResult | None = None) -> FitResult:
+    """A ``FitResult`` of the line model's ``LineFit``: speeds (or a grating's speed along its normal with
+    the other component undetermined), a, the normal's angle; texture "grating" or "lines"."""
+    res = FitResult(model="lines", texture="grating" if fit.texture == "grating" else "lines",
+                    status=Status(fit.status), message=fit.message, converged=True, solver="optimistix",
+                    redchi=fit.redchi, chi2=fit.chi2, n_bins=int(fit.n_used), n_residuals=int(fit.n_used),
+                    n_params=0)
+    bounds = fit.speed_bounds or (None, None)
+    for name, value, err, bound in (("vx", fit.vx, fit.vx_err, bounds[0]), ("vy", fit.vy, fit.vy_err, bounds[1])):
+        if options.velocity is not None:
+            res.set(name, value=abs(options.velocity[name == "vy"]), fixed=True)
+        elif value is not None:
+            res.set(name, value=float(value), err=None if err is None else float(err))
+        elif bound is not None:
+            res.set(name, lo2=float(bound[0]), hi2=float(bound[1]))
+    if fit.a is not None:
+        res.set("a", value=float(fit.a), err=None if fit.a_err is None else float(fit.a_err))
+    if fit.v_n is not None:
+        res.set("v_normal", value=float(fit.v_n), err=None if fit.v_n_err is None else float(fit.v_n_err))
+    elif fit.v_n_bounds is not None:
+        res.set("v_normal", lo2=float(fit.v_n_bounds[0]), hi2=float(fit.v_n_bounds[1]))
+    if fit.normal_angle is not None:
+        res.set("normal_angle", value=float(fit.normal_angle),
+                err=None if fit.normal_angle_err is None else float(fit.normal_angle_err))
+    gains = known_gains(options)
+    res.set("gain_ratio", value=gains[0], fixed=True)
+    res.set("gain_ratio_y", value=gains[1], fixed=True)
+    set_contact_depth(res, curvature_radius)
+    if smooth is not None:
+        res.file, res.index, res.truth, res.precision = smooth.file, smooth.index, smooth.truth, smooth.precision
+        res.warnings.append(f"the smooth texture model gave {smooth.status.value}: "
+                            f"{(smooth.message or '').split(';')[0]}")
     return res
 
 

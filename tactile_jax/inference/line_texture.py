@@ -70,14 +70,17 @@ NMAX = 32
 A_RANGE = (0.5e-3, 10e-3)
 #: floors (natural-log units) added in quadrature to the Bendat-Piersol errors of the pairs' ratios and of
 #: the cross-pair level (calibrated on simulated gratings, nets and plane-wave textures: NOTES)
-RATIO_FLOOR = 0.001
-CROSS_FLOOR = 0.001
+RATIO_FLOOR = 3e-4
+CROSS_FLOOR = 3e-4
 #: chi2 p-value below which a fit is ``poor_fit``
 P_POOR = 1e-3
 #: relative one-sigma error above which a (marginalised) speed is reported undetermined
 MAX_REL_ERR = 0.25
 #: sd of log a above which the lines are said not to determine a (it is then marginalised)
-A_DETERMINED = 0.3
+A_DETERMINED = 0.15
+#: condition number of the fit's (equilibrated) Gauss-Newton matrix above which a combination of parameters
+#: is taken as undetermined by the lines
+COND_MAX = 1e10
 #: chi2 margin within which two sign choices fit "equally well"
 AMBIGUITY_CHI2 = 4.0
 #: a line z-score beyond which the worst line may be dropped
@@ -374,6 +377,15 @@ class _Fit(NamedTuple):
     converged: bool
     t: np.ndarray
     z: np.ndarray          # (L,) largest |residual| of each slot's line
+    n_free: int = 0
+    cond: float = 1.0
+    n_data: int = 0
+
+    @property
+    def determined(self) -> bool:
+        """As many data as free parameters and no combination of them the data leave flat (Gauss-Newton
+        condition number below ``COND_MAX``): else the pseudo-inverse covariance would understate errors."""
+        return self.n_data >= self.n_free and self.cond < COND_MAX
 
 
 def _args(dat: _Data, slots, family, harm, t, mw_extra=None):
@@ -419,9 +431,11 @@ def _run(dat, slots, *, family, harm, t, a0, v0, kx0, ky0, free_a, free_v, free_
     z = np.zeros(dat.w.size)
     z[slots] = np.abs(r[:, :n]).max(0)
     n_data = int(np.sum(np.asarray([args["mx"], args["my"], args["mc"], args["mw"]]) > 0))
-    dof = max(n_data - int(free.sum()), 0)
+    n_free = int(free.sum())
+    dof = max(n_data - n_free, 0)
+    cond = float(res.cond) if np.isfinite(res.cond) else float("inf")
     return _Fit(np.asarray(res.theta), np.asarray(res.cov), float(res.chi2), dof, bool(res.converged),
-                np.asarray(t, float), z)
+                np.asarray(t, float), z, n_free, cond, n_data)
 
 
 def _p_value(chi2, dof):
@@ -512,7 +526,19 @@ def fit_lines(lines, depths, *, gain_ratio=1.0, shallow_gain_ratio=1.0, contact_
         raise ValueError(f"at most {4 * NMAX} lines, got {n_lines}")
     dat = _measurements(lines, d1, d2, float(g[0]), float(g[1]),
                         None if shallow_gain_ratio is None else float(shallow_gain_ratio), ratio_floor, cross_floor)
-    return _Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a)).run()
+    return _plain(_Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a)).run())
+
+
+def _plain(res: LineFit) -> LineFit:
+    """numpy scalars as Python floats (tuples of them too), for printing and JSON."""
+    def conv(v):
+        if isinstance(v, (np.floating, np.integer)):
+            return v.item()
+        if isinstance(v, tuple):
+            return tuple(conv(x) for x in v)
+        return v
+
+    return res._replace(**{k: conv(getattr(res, k)) for k in res._fields if k != "lines"})
 
 
 class _Fitter:
@@ -614,7 +640,7 @@ class _Fitter:
         if a0 is not None:
             # the levels fix a: start there; the profile only where the fit then leaves a undetermined
             fits = fitfn(a0, True, True)
-            if fits and fits[0].converged and 0 < self._a_sd(fits[0]) <= A_DETERMINED:
+            if fits and self._a_ok(fits[0]):
                 return fits, []
         prof = []
         for a in self.a_grid:
@@ -726,15 +752,29 @@ class _Fitter:
         ky, kye = np.where(fill_y, sy, ky), np.where(fill_y, sye, kye)
         return kx, kxe, ky, kye
 
+    def _a_ok(self, fit) -> bool:
+        """The fit with a free determines a: converged, well posed, sd(log a) <= A_DETERMINED."""
+        return fit.converged and fit.determined and 0 < self._a_sd(fit) <= A_DETERMINED
+
     def _a_report(self, fit, prof):
         """(a, a_err, source, marginalise?)"""
         if self.a_known is not None:
             return float(self.a_known), 0.0, "given", False
-        sd = self._a_sd(fit)
-        if fit.converged and 0 < sd <= A_DETERMINED:
+        if self._a_ok(fit):
             a = 1e-3 * math.exp(fit.theta[0])
-            return a, a * sd, "fit", False
+            return a, a * self._a_sd(fit), "fit", False
         return None, None, "marginalised", True
+
+    @staticmethod
+    def _marginal(prof, i):
+        """(mean, sd, lo, hi) of |theta[i]| (m/s) over the well-posed fits of the a profile, a mixture weighted
+        by exp(-chi2 / 2) (a flat prior in log a over ``a_range``); None where no fit of it is well posed."""
+        good = [f for _, f in prof if f.determined and f.converged]
+        if not good:
+            return None
+        vals = [(abs(f.theta[i]) * _V_UNIT, math.sqrt(max(f.cov[i, i] * _scale(f), 0.0)) * _V_UNIT, f.chi2)
+                for f in good]
+        return _Fitter._mixture(*zip(*vals))
 
     @staticmethod
     def _mixture(values, errs, chi2s):
@@ -780,15 +820,21 @@ class _Fitter:
                            v_n_bounds=(0.0, hi) if hi else None, **stats, **base)
         v_n, v_n_err = fit.theta[1] * _V_UNIT, math.sqrt(max(cov[1, 1], 0.0)) * _V_UNIT
         bounds = None
-        if marg:
-            vals = [(f.theta[1] * _V_UNIT, math.sqrt(max(f.cov[1, 1] * _scale(f), 0.0)) * _V_UNIT, f.chi2)
-                    for _, f in prof]
-            v_n, v_n_err, lo, hi = self._mixture(*zip(*vals))
-            bounds = (max(lo, 0.0), hi)
         status = "poor_fit" if p < P_POOR else "undetermined"
-        if marg and v_n_err > MAX_REL_ERR * abs(v_n) and p >= P_POOR:
-            msg = (f"one family of parallel lines (a grating) whose lines do not determine a: over a in "
-                   f"[{self.a_grid[0] * 1e3:.1g}, {self.a_grid[-1] * 1e3:.1g}] mm the speed along its normal spans "
+        ill = marg and self._marginal(prof, 1) is None or (not marg and not fit.determined)
+        if ill and p >= P_POOR:
+            return LineFit(status, "one family of parallel lines (a grating) whose lines leave a combination of "
+                           "its parameters undetermined (the speed along its normal among them); vx, vy undetermined "
+                           "(aperture problem)", a=a, a_err=a_err, a_source=a_src, **stats, **base)
+        if marg and not ill:
+            v_n, v_n_err, lo, hi = self._marginal(prof, 1)
+            bounds = (max(lo, 0.0), hi)
+        if v_n_err > MAX_REL_ERR * abs(v_n) and p >= P_POOR:
+            if bounds is None:
+                bounds = (max(v_n - 2 * v_n_err, 0.0), v_n + 2 * v_n_err)
+            why = ("whose lines do not determine a: over a in "
+                   f"[{self.a_grid[0] * 1e3:.1g}, {self.a_grid[-1] * 1e3:.1g}] mm" if marg else "loosely determined:")
+            msg = (f"one family of parallel lines (a grating) {why} the speed along its normal spans "
                    f"{bounds[0]:.3g}-{bounds[1]:.3g} m/s (undetermined); vx, vy undetermined (aperture problem)")
             return LineFit(status, msg, a=None, a_source=a_src, v_n_bounds=bounds, normal_angle=ang,
                            normal_angle_err=ang_err, **stats, **base)
@@ -853,16 +899,17 @@ class _Fitter:
         alts = [(vx, vy, fit.chi2)] + [(r[1], r[2], r[0].chi2) for r in rivals]
         ambiguous = bool(rivals)
         bounds = None
-        if marg and not known_v:
-            vals_x = [(abs(f.theta[1]) * _V_UNIT, math.sqrt(max(f.cov[1, 1] * _scale(f), 0)) * _V_UNIT, f.chi2)
-                      for _, f in prof]
-            vals_y = [(abs(f.theta[2]) * _V_UNIT, math.sqrt(max(f.cov[2, 2] * _scale(f), 0)) * _V_UNIT, f.chi2)
-                      for _, f in prof]
-            vx, vxe, lox, hix = self._mixture(*zip(*vals_x))
-            vy, vye, loy, hiy = self._mixture(*zip(*vals_y))
-            bounds = ((max(lox, 0.0), hix), (max(loy, 0.0), hiy))
         common = dict(a=a, a_err=a_err, a_source=a_src, ambiguous=ambiguous,
                       alternatives=tuple(alts) if ambiguous else (), **stats, **base)
+        ill = (not known_v and marg and self._marginal(prof, 1) is None) or (not marg and not fit.determined)
+        if ill and p >= P_POOR:
+            return LineFit("undetermined", "the lines leave a combination of the parameters undetermined "
+                           f"({fit.n_data} data for {fit.n_free} free parameters, condition number {fit.cond:.1g})",
+                           **common)
+        if marg and not known_v:
+            vx, vxe, lox, hix = self._marginal(prof, 1)
+            vy, vye, loy, hiy = self._marginal(prof, 2)
+            bounds = ((max(lox, 0.0), hix), (max(loy, 0.0), hiy))
         if p < P_POOR:
             return LineFit("poor_fit", f"the model does not explain the lines: chi2 {fit.chi2:.1f} for {fit.dof} dof "
                            f"(p = {p:.1g}) after dropping {int(dropped.sum())} line(s)",
@@ -872,12 +919,18 @@ class _Fitter:
             return LineFit("undetermined", f"{len(alts)} sign choices of the lines fit equally well with different "
                            f"speeds (|vx|, |vy|): {alt_txt}; more lines (or combination lines) would decide",
                            **common)
-        if marg and not known_v and (vxe > MAX_REL_ERR * math.hypot(vx, vy) or vye > MAX_REL_ERR * math.hypot(vx, vy)):
-            return LineFit("undetermined", f"the lines do not determine a, and over a in [{self.a_grid[0] * 1e3:.1g}, "
-                           f"{self.a_grid[-1] * 1e3:.1g}] mm the speeds span |vx| {bounds[0][0]:.3g}-{bounds[0][1]:.3g}, "
-                           f"|vy| {bounds[1][0]:.3g}-{bounds[1][1]:.3g} m/s", speed_bounds=bounds, **common)
-        msg = (f"{len(slots)} lines in two or more directions: |vx| = {vx * 100:.4g} +/- {vxe * 100:.2g}, "
-               f"|vy| = {vy * 100:.4g} +/- {vye * 100:.2g} cm/s"
+        speed = math.hypot(vx, vy)
+        if not known_v and (vxe > MAX_REL_ERR * speed or vye > MAX_REL_ERR * speed):
+            if bounds is None:
+                bounds = ((max(vx - 2 * vxe, 0.0), vx + 2 * vxe), (max(vy - 2 * vye, 0.0), vy + 2 * vye))
+            why = (f"the lines do not determine a, and over a in [{self.a_grid[0] * 1e3:.1g}, "
+                   f"{self.a_grid[-1] * 1e3:.1g}] mm" if marg else "the lines determine the speeds only loosely:")
+            return LineFit("undetermined", f"{why} the speeds span |vx| {bounds[0][0]:.3g}-{bounds[0][1]:.3g}, "
+                           f"|vy| {bounds[1][0]:.3g}-{bounds[1][1]:.3g} m/s (2 sigma; relative errors above "
+                           f"{MAX_REL_ERR:.0%})", speed_bounds=bounds, **common)
+        msg = ((f"velocity given, {len(slots)} lines fitted: |vx| = {vx * 100:.4g}, |vy| = {vy * 100:.4g} cm/s"
+                if known_v else f"{len(slots)} lines in two or more directions: |vx| = {vx * 100:.4g} +/- "
+                f"{vxe * 100:.2g}, |vy| = {vy * 100:.4g} +/- {vye * 100:.2g} cm/s")
                + (f", a = {a * 1e3:.3g} +/- {a_err * 1e3:.2g} mm" if a is not None else ", a marginalised")
                + (f"; {int(dropped.sum())} line(s) dropped as outliers" if dropped.any() else "") + resolved)
         return LineFit("ok", msg, vx=vx, vx_err=vxe, vy=vy, vy_err=vye, speed_bounds=bounds, **common)

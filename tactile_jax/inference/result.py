@@ -28,11 +28,13 @@ __all__ = ["Estimate", "FitResult", "TextureSection", "QUANTITIES", "RESULT_FIEL
 RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth",
                  "contact_depth_err", "gain_ratio", "gain_ratio_err", "k0x", "k0y", "model", "window",
                  "converged", "status", "message")
-#: the reported quantities (SI units: m/s, m, m, ratio, ratio)
-QUANTITIES = ("vx", "vy", "a", "contact_depth", "gain_ratio", "gain_ratio_y")
+#: the reported quantities (SI units: m/s, m/s, m, m, ratio, ratio; a line texture's speed along its
+#: lines' normal, m/s, and that normal's angle to the x axis, degrees in [0, 90])
+QUANTITIES = ("vx", "vy", "a", "contact_depth", "gain_ratio", "gain_ratio_y", "v_normal", "normal_angle")
 #: the bounds and intervals a row carries for each quantity, as ``<quantity>_<field>`` columns
 _ROW_EXTRAS = {"vx": ("upper", "lo", "hi", "lo2", "hi2"), "vy": ("upper", "lo", "hi", "lo2", "hi2"),
-               "a": ("lower",), "gain_ratio_y": ("value", "err")}
+               "a": ("lower",), "gain_ratio_y": ("value", "err"), "v_normal": ("value", "err", "lo2", "hi2"),
+               "normal_angle": ("value", "err")}
 #: plausible ranges of the contact radius and the speeds (m, m/s)
 A_BOUNDS = (1e-5, 0.1)
 V_BOUNDS = (1e-6, 10.0)

@@ -276,8 +276,7 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
         heard[p, :n] &= ~(split & (strong != p))
         heard[p, n:] &= pair_of[n:] == p
     idx_r = idx[rows]
-    drop = lambda v: np.where(heard, v, np.nan)  # noqa: E731
-    log_ratio, err = drop(log_ratio[:, rows]), drop(err[:, rows])
+    log_ratio, err = np.where(heard, log_ratio[:, rows], np.nan), np.where(heard, err[:, rows], np.nan)
     coh, db = coh[:, rows], db[:, rows]
     cross_log, cross_err, cross_coh = cross_log[rows], cross_err[rows], cross_coh[rows]
     # frequency to a fraction of a bin, from the shallow amplitudes of the stronger pair (of the pair that hears it)

@@ -1,0 +1,174 @@
+"""Line textures: line detection (spectral.peaks) and the line model (inference.line_texture).
+
+Short scenes only (4-8 s); the line fit compiles one program (a few seconds), shared by the tests here.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+import tactile_jax as tj
+from tactile_jax.inference.line_texture import fit_lines, invert_ratio
+from tactile_jax.model.r_curve import log_g, log_r_exact
+from tactile_jax.spectral.peaks import Lines, detect_lines, find_lines, hann_offset, line_spectra
+
+D1, D2 = 0.265e-3, 0.925e-3
+
+
+def _cross(kx, ky, a):
+    """log|y1 / x1| of a mode (kx, ky) under the Gaussian window of radius a."""
+    return float(log_g(ky, D1, a) - log_g(kx, D1, a)) + a * a * (ky * ky - kx * kx) / 6.0
+
+
+def _lines(modes, v, a, *, err=1e-3, hear=None):
+    """Exact ``Lines`` of the modes (k (n, 2), rad/m) sliding at v (m/s): both pairs and the cross level."""
+    k = np.abs(np.asarray(modes, float))
+    n = len(k)
+    w = np.abs(np.asarray(modes, float) @ np.asarray(v, float))
+    heard = np.ones((2, n), bool) if hear is None else np.asarray(hear, bool)
+    lr = np.stack([np.asarray(log_r_exact(k[:, 0], D1, D2, a)), np.asarray(log_r_exact(k[:, 1], D1, D2, a))])
+    lr = np.where(heard, lr, np.nan)
+    cross = np.array([_cross(kx, ky, a) for kx, ky in k])
+    cross = np.where(heard.all(0), cross, np.nan)
+    order = np.argsort(w)
+    z = np.zeros(2)
+    return Lines(w[order], np.full(n, 1e-3), np.arange(n), heard[:, order], lr[:, order],
+                 np.where(heard, err, np.nan)[:, order], np.ones((2, n)), np.full((2, n), 60.0),
+                 np.full((2, n), 40.0), cross[order], np.where(np.isfinite(cross), err, np.nan)[order],
+                 np.ones(n), 1.0, 30.0, 0, z.astype(int), np.full(2, np.nan), np.full(2, np.nan))
+
+
+# ---------------------------------------------------------------------------------------------- detection
+
+
+def test_hann_offset_recovers_fractional_bin():
+    for d in (-0.4, -0.1, 0.0, 0.25, 0.5):
+        amp = [abs(np.sinc(x - d) / (1 - (x - d) ** 2)) if abs(abs(x - d) - 1) > 1e-9 else 0.5 for x in (-1, 0, 1)]
+        assert hann_offset(amp[1], amp[0], amp[2]) == pytest.approx(d, abs=1e-6)
+
+
+def test_detect_synthetic_tones():
+    """Two tones in the x pair (one also in the y pair), white noise: frequencies, ratios and the cross level."""
+    fs, n = 1000.0, 8000
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(0)
+    w1, w2 = 2 * np.pi * 31.37, 2 * np.pi * 87.9
+    r1, r2, ry, c = 0.2, 0.05, 0.4, 0.1                      # x ratios, y ratio, y1 / x1 of tone 1
+    s1, s2 = np.cos(w1 * t), 0.5 * np.cos(w2 * t + 1.0)
+    sig = np.stack([s1 + s2, r1 * s1 + r2 * s2, c * s1, ry * c * s1]) + 1e-4 * rng.standard_normal((4, n))
+    lines = detect_lines(line_spectra(sig, fs))
+    assert lines.n == 2
+    assert lines.omega == pytest.approx([w1, w2], abs=0.02 * lines.d_omega)
+    assert lines.heard.tolist() == [[True, True], [True, False]]
+    for got, want, err in ((lines.log_ratio[0, 0], math.log(r1), lines.log_ratio_err[0, 0]),
+                           (lines.log_ratio[0, 1], math.log(r2), lines.log_ratio_err[0, 1]),
+                           (lines.log_ratio[1, 0], math.log(ry), lines.log_ratio_err[1, 0]),
+                           (lines.cross_log[0], math.log(c), lines.cross_err[0])):
+        assert abs(got - want) < 5 * err + 1e-3
+    assert np.isnan(lines.cross_log[1]) and np.isnan(lines.log_ratio[1, 1])
+
+
+@pytest.fixture(scope="module")
+def grating_recording():
+    """A sine grating at 40 deg under a 0.9 mm contact: both pairs hear its line."""
+    scene = tj.Scene(texture=tj.Grating(pitch=1.0e-3, angle=math.radians(40)), velocity=(0.02, 0.01),
+                     contact_radius=0.9e-3, duration=4.0, snr_db=45, seed=1)
+    return tj.simulate(scene)
+
+
+def test_detect_simulated_grating(grating_recording):
+    rec = grating_recording
+    lines = find_lines(rec.signals, rec.fs)
+    k = 2 * math.pi / 1.0e-3 * np.array([math.cos(math.radians(40)), math.sin(math.radians(40))])
+    assert lines.n == 1 and lines.heard[:, 0].all()
+    assert lines.omega[0] == pytest.approx(abs(k @ [0.02, 0.01]), abs=0.01 * lines.d_omega)
+    for p in range(2):
+        want = float(log_r_exact(k[p], D1, D2, 0.9e-3))
+        assert abs(lines.log_ratio[p, 0] - want) < 4 * lines.log_ratio_err[p, 0] + 0.01
+    assert abs(lines.cross_log[0] - _cross(k[0], k[1], 0.9e-3)) < 4 * lines.cross_err[0] + 0.01
+
+
+# ---------------------------------------------------------------------------------------------- the model
+
+
+def test_invert_ratio_round_trip():
+    for a in (0.7e-3, 2e-3, 6e-3):
+        k = np.array([800.0, 3000.0, 9000.0, 20000.0])
+        assert invert_ratio(np.asarray(log_r_exact(k, D1, D2, a)), a, D1, D2) == pytest.approx(k, rel=2e-3)
+
+
+def test_signs_three_modes_give_both_speeds():
+    """Three modes of mixed sign choices (kx ky < 0 for one): the sign search finds the one velocity."""
+    v, a = (0.021, 0.013), 1.2e-3
+    modes = [(3000.0, 1500.0), (-1200.0, 2600.0), (2500.0, -2200.0)]
+    res = fit_lines(_lines(modes, v, a), (D1, D2))
+    assert res.status == "ok", res.message
+    assert res.vx == pytest.approx(v[0], rel=1e-3) and res.vy == pytest.approx(v[1], rel=1e-3)
+    assert res.a == pytest.approx(a, rel=1e-3)
+    assert not res.ambiguous
+    # the fitted |k| components and sign choices of the table
+    k = np.abs(np.asarray(modes))[np.argsort(np.abs(np.asarray(modes) @ v))]
+    assert res.lines.kx == pytest.approx(k[:, 0], rel=1e-3)
+    assert res.lines.ky == pytest.approx(k[:, 1], rel=1e-3)
+    assert set(res.lines.sign.tolist()) == {-1.0, 1.0}
+
+
+def test_two_modes_are_ambiguous():
+    """Two modes: every sign choice solves the two frequencies exactly; the truth is among the alternatives."""
+    v, a = (0.021, 0.013), 1.2e-3
+    res = fit_lines(_lines([(3000.0, 1500.0), (-1200.0, 2600.0)], v, a), (D1, D2))
+    assert res.status == "undetermined" and res.ambiguous
+    assert res.vx is None and res.vy is None
+    assert any(abs(u - v[0]) < 1e-4 and abs(w - v[1]) < 1e-4 for u, w, _ in res.alternatives)
+    assert "sign choices" in res.message
+
+
+def test_single_pair_lines_leave_speeds_undetermined():
+    v, a = (0.021, 0.013), 1.2e-3
+    res = fit_lines(_lines([(3000.0, 300.0), (400.0, 2600.0)], v, a, hear=[[1, 0], [0, 1]]), (D1, D2))
+    assert res.status == "undetermined" and res.vx is None and res.vy is None
+    assert "one pair only" in res.message
+
+
+def test_grating_reports_the_aperture_problem(grating_recording):
+    rec = grating_recording
+    res = fit_lines(find_lines(rec.signals, rec.fs), rec.depths)
+    ang = math.radians(40)
+    v_n = 0.02 * math.cos(ang) + 0.01 * math.sin(ang)
+    assert res.status == "undetermined" and res.texture == "grating"
+    assert res.vx is None and res.vy is None and "aperture" in res.message
+    assert res.v_n == pytest.approx(v_n, rel=0.01) and abs(res.v_n - v_n) < 4 * res.v_n_err
+    assert res.normal_angle == pytest.approx(40.0, abs=1.0)
+    assert res.a == pytest.approx(0.9e-3, rel=0.03)
+
+
+def test_wire_net_gives_both_speeds():
+    scene = tj.Scene(texture=tj.WireNet(pitch=1.5e-3, wire_width=0.3e-3, angle=0.3), velocity=(0.02, 0.03),
+                     contact_radius=0.9e-3, duration=8.0, snr_db=45, seed=1)
+    rec = tj.simulate(scene)
+    res = fit_lines(find_lines(rec.signals, rec.fs), rec.depths)
+    assert res.status == "ok", res.message
+    assert res.texture == "multi" and res.n_used >= 3
+    assert abs(res.vx - 0.02) < 0.02 * 0.036 and abs(res.vx - 0.02) < 4 * res.vx_err
+    assert abs(res.vy - 0.03) < 0.02 * 0.036 and abs(res.vy - 0.03) < 4 * res.vy_err
+
+
+def test_too_fine_texture_is_no_band():
+    """A 0.4 mm grating: the shallow probes hear it, the deep ones do not."""
+    scene = tj.Scene(texture=tj.Grating(pitch=0.4e-3, angle=0.3), velocity=(0.02, 0.01), contact_radius=1.0e-3,
+                     duration=4.0, snr_db=45, seed=1)
+    rec = tj.simulate(scene)
+    res = fit_lines(find_lines(rec.signals, rec.fs), rec.depths)
+    assert res.status == "no_band"
+    assert "too fine" in res.message and "rad/m" in res.message
+    k_max = float(res.message.split("(d2 - d1) = ")[1].split(" rad/m")[0])
+    assert 8e3 < k_max < 2 * math.pi / 0.4e-3          # the line's |k| is beyond what the deep probe hears
+
+
+def test_bad_arguments_raise():
+    lines = _lines([(3000.0, 1500.0)], (0.02, 0.01), 1e-3)
+    with pytest.raises(ValueError):
+        fit_lines(lines, (D2, D1))
+    with pytest.raises(ValueError):
+        fit_lines(lines, (D1, D2), contact_radius=-1.0)
