@@ -55,7 +55,7 @@ STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
 N_KNOTS = 12
 #: fixed iterations: per start on the texture alone, per start in all, then from the best start
 ITERATIONS = (3, 7, 18)
-POOR_FIT_REDCHI = 2.5
+POOR_FIT_REDCHI = 2.0
 #: a stop counts as converged when a full Gauss-Newton step would lower chi2 by less than this...
 DECREMENT_TOL = 1e-2
 #: ... or move every free non-texture parameter by less than this many of its sigmas

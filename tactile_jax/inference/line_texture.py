@@ -32,6 +32,14 @@ Identifiability (what the fit assumes and reports):
   v_n = omega / |k| along the wavevector is determined (the aperture problem); vx,
   vy are None, status ``undetermined``, with v_n and the normal's angle in [0, 90]
   degrees (the mirror image -angle fits equally: the sign of kx ky is unknown).
+  A grating's lines are all harmonics n omega0; lines at other frequencies (heard by
+  one pair) lie in other directions, so the texture is not one grating (texture
+  ``multi``). Its family's v_n is reported only if the family is one of the
+  texture's principal directions: if a line in another direction carries
+  ``MINOR_DB`` more relief amplitude (its level over the largest response the window
+  allows it, against the family's level over its own response), the family is a
+  minor mode (a weak harmonic or combination of lines in other directions, or, in a
+  simulation, a mode aliased by the texture's grid) and v_n is withheld.
 - Two or more directions: both speeds. Sign choices t_j are searched on a grid of
   v (each line's best t at each v), the best minima refined; when two choices fit
   equally well (chi2 within ``AMBIGUITY_CHI2``) and give speeds more than 3 sigma
@@ -62,7 +70,7 @@ from ..model.r_curve import log_g, log_r_exact
 from .lsq import least_squares
 
 __all__ = ["LineTable", "LineFit", "fit_lines", "NMAX", "A_RANGE", "RATIO_FLOOR", "CROSS_FLOOR",
-           "P_POOR", "MAX_REL_ERR", "A_DETERMINED", "AMBIGUITY_CHI2", "invert_ratio"]
+           "P_POOR", "MAX_REL_ERR", "A_DETERMINED", "AMBIGUITY_CHI2", "MINOR_DB", "invert_ratio"]
 
 #: line slots of the compiled fit (more 2-D modes: the best measured are kept)
 NMAX = 32
@@ -87,6 +95,10 @@ AMBIGUITY_CHI2 = 4.0
 DROP_Z = 4.0
 #: harmonics considered for one family
 MAX_HARMONIC = 8
+#: relief-amplitude margin (dB) by which a line in another direction must exceed a family for the family to
+#: count as a minor mode of the texture, whose normal is not reported (its lines' levels over their responses;
+#: simulated nets: principal families within 5 dB of the other lines' bounds, grid-aliased modes 32-56 dB below)
+MINOR_DB = 20.0
 
 _K_GRID = np.geomspace(20.0, 3e5, 4096)         # rad/m, for inverting the monotone curves
 _NG = 5                                          # global parameters: log a, vx, vy, log kx0, log ky0
@@ -132,7 +144,8 @@ class LineFit(NamedTuple):
     v_n, v_n_err: speed along a grating's normal; v_n_bounds: (lo, hi) when v_n is undetermined.
     normal_angle, normal_angle_err: the normal's angle to the x axis, degrees in [0, 90] (its mirror
     image, minus that angle, fits equally). texture: "grating" (one family of parallel lines),
-    "multi" (two or more directions) or "none". ambiguous: two sign choices fit equally well with
+    "multi" (two or more directions: a fit of them, or one family among lines at other frequencies, whose
+    v_n is then its own normal's) or "none". ambiguous: two sign choices fit equally well with
     different speeds; alternatives: ((|vx|, |vy|, chi2), ...) of the choices within
     ``AMBIGUITY_CHI2`` of the best. speed_bounds: ((lo, hi), (lo, hi)) of |vx|, |vy| when a
     marginalised speed is undetermined. chi2, redchi, dof; n_lines (detected), n_used (in the speed
@@ -683,12 +696,15 @@ class _Fitter:
             join = extra & (n_extra >= 1) & (n_extra <= MAX_HARMONIC) & (np.abs(dat.w - n_extra * w0) <= tol)
             harm = np.where(join, n_extra, harm)
             fam_sel = self.two_d | join
+            # lines at no harmonic of the family (any order): other directions, so not one grating
+            w0_err = float(np.min(dat.sw[self.two_d] / np.maximum(harm[self.two_d], 1.0)))
+            others = ~fam_sel & (np.abs(dat.w - n_extra * w0) > tol + 4.0 * n_extra * w0_err)
             slots = self._slots(fam_sel)
             fits, prof = self._profile(lambda a, fa, final: [self._fit_family(slots, harm, a, fa)])
             fit = self._drop_outliers(fits[0], lambda s: self._fit_family(s, harm, 1e-3 * math.exp(fits[0].theta[0]),
                                                                           self.a_known is None), slots)
             if _p_value(fit[0].chi2, fit[0].dof) >= P_POOR or self.two_d.sum() == 1:
-                return self._grating_result(fit, prof, harm, **base)
+                return self._grating_result(fit, prof, harm, others=others, **base)
         # two or more directions
         slots = self._slots(self.two_d)
         if self.v_known is None and len(slots) < 2:
@@ -787,8 +803,53 @@ class _Fitter:
         var = float(np.sum(wts * (np.square(errs) + np.square(v - mean))))
         return mean, math.sqrt(var), float(np.min(v - 2 * np.asarray(errs))), float(np.max(v + 2 * np.asarray(errs)))
 
-    def _grating_result(self, fitted, prof, harm, **base):
+    def _minor_margin(self, a, slots, harm, lx, ly, others):
+        """(margin dB, line, pair): how much more relief amplitude the strongest line of ``others`` carries than
+        the family (``slots``, harmonics ``harm`` of the fitted log |kx0|, log |ky0| ``lx``, ``ly``), at radius ``a``.
+
+        A mode of amplitude A rings pair x's shallow probe with power g_x1^2 A^2 H_x^2, H_x = G(|kx|; d1, a)
+        W(ky) and W(k) = exp(-a^2 k^2 / 6) (``model.probe.line_response``; y likewise, g_y1 = rho g_x1). A
+        family line's A follows from its level and its fitted wavevector (the pair with the higher level); a
+        line outside it gives a lower bound, with W <= 1 and |k_s| from its pair's ratio at ``a`` (G <= 1
+        where no pair's ratio is measured). Levels: main-lobe powers (``Lines.shallow_power``), or the dB
+        above the background where the lines carry none.
+        """
+        dat = self.dat
+        db = np.asarray(self.lines.shallow_db, float)
+        power = getattr(self.lines, "shallow_power", None)
+        if power is not None:
+            db = 10.0 * np.log10(np.maximum(np.asarray(power, float), 1e-300))
+        db = db - np.array([[0.0], [20.0 / math.log(10.0) * dat.lrho]])       # in units of g_x1^2
+        to_db = 20.0 / math.log(10.0)
+
+        def log_gain(k):                                                      # log G(|k|; d1, a)
+            k = np.asarray(k, float)
+            return _cross_f(k, a, dat.d1, dat.d2) - np.square(a * k) / 6.0
+
+        fam = -np.inf
+        for j in slots:
+            kx, ky = harm[j] * _K_UNIT * math.exp(lx), harm[j] * _K_UNIT * math.exp(ly)
+            log_h = (float(log_gain(kx)) - (a * ky) ** 2 / 6.0, float(log_gain(ky)) - (a * kx) ** 2 / 6.0)
+            q = int(np.argmax(db[:, j]))
+            fam = max(fam, db[q, j] - to_db * log_h[q])
+        best = (-np.inf, -1, 0)
+        for u in np.flatnonzero(others):
+            for q, (h, lr, lgain) in enumerate(((dat.hx, dat.lrx, dat.lgx), (dat.hy, dat.lry, dat.lgy))):
+                if h[u]:
+                    k_s = float(invert_ratio(lr[u] - lgain, a, dat.d1, dat.d2))
+                    bound = db[q, u] - to_db * float(log_gain(k_s))
+                elif not (dat.hx[u] or dat.hy[u]):
+                    bound = db[q, u]                                          # H <= 1
+                else:
+                    continue
+                if bound > best[0]:
+                    best = (bound, int(u), q)
+        return best[0] - fam, best[1], best[2]
+
+    def _grating_result(self, fitted, prof, harm, others=None, **base):
         fit, slots, dropped = fitted
+        others = np.zeros(self.n, bool) if others is None else np.asarray(others, bool)
+        n_other = int(others.sum())
         dat = self.dat
         sc = _scale(fit)
         cov = fit.cov * sc
@@ -801,7 +862,8 @@ class _Fitter:
                        np.where(used, 1.0, 0.0))
         p = _p_value(fit.chi2, fit.dof)
         stats = dict(chi2=fit.chi2, redchi=fit.chi2 / fit.dof if fit.dof else float("nan"), dof=fit.dof,
-                     n_used=len(slots), n_dropped=int(dropped.sum()), lines=table, texture="grating")
+                     n_used=len(slots), n_dropped=int(dropped.sum()), lines=table,
+                     texture="multi" if n_other else "grating")
         lx, ly = fit.theta[3], fit.theta[4]
         ang = math.degrees(math.atan2(math.exp(ly), math.exp(lx)))
         sc_ = math.sin(math.radians(ang)) * math.cos(math.radians(ang))
@@ -821,11 +883,39 @@ class _Fitter:
         v_n, v_n_err = fit.theta[1] * _V_UNIT, math.sqrt(max(cov[1, 1], 0.0)) * _V_UNIT
         bounds = None
         status = "poor_fit" if p < P_POOR else "undetermined"
+        harmonics = sorted(set(int(h) for h in harm[slots]))
+        note = ""
+        if n_other:
+            # the family against the other lines at its radius (an undetermined a: every radius of the profile
+            # that fits about as well, with that fit's wavevector; the margin shrinks as a grows)
+            if marg:
+                c0 = min((f.chi2 for _, f in prof if f.converged), default=math.inf)
+                cands = [(r, f.theta[3], f.theta[4]) for r, f in prof if f.converged and f.chi2 <= c0 + AMBIGUITY_CHI2]
+            else:
+                cands = [(1e-3 * math.exp(fit.theta[0]), lx, ly)]
+            margin, u, pair, a_fit = -math.inf, -1, 0, float("nan")
+            for r, fx, fy in cands:
+                m_ = self._minor_margin(r, slots, harm, fx, fy, others)
+                if m_[0] > margin:
+                    (margin, u, pair), a_fit = m_, r
+            if margin > MINOR_DB and p >= P_POOR:
+                msg = (f"the lines measured in both components form one family ({len(slots)} line(s), harmonics "
+                       f"{harmonics}, normal at {ang:.1f} deg), but it is a minor mode of the texture: the line at "
+                       f"{dat.w[u]:.1f} rad/s ({'xy'[pair]} pair, no harmonic of it) carries at least {margin:.0f} dB "
+                       f"more relief amplitude (levels over the window's responses at a = {a_fit * 1e3:.3g} mm), so "
+                       "the family is a weak harmonic or combination of lines in other directions (or a mode aliased "
+                       "by a simulation's grid) and its normal is not the texture's; the texture's lines "
+                       f"({n_other} line(s) outside the family) are each measured in one component only, so the "
+                       "speeds and the speed along the texture's normals are undetermined (the family alone would "
+                       f"give omega0 / |k0| = {v_n:.3g} m/s)")
+                return LineFit("undetermined", msg, a=a, a_err=a_err, a_source=a_src, **stats, **base)
+            note = (f"; {n_other} other line(s), at no harmonic of the family, lie in other directions (each measured "
+                    "in one component): the texture is not one grating, and the normal is its family's")
         ill = marg and self._marginal(prof, 1) is None or (not marg and not fit.determined)
         if ill and p >= P_POOR:
             return LineFit(status, "one family of parallel lines (a grating) whose lines leave a combination of "
                            "its parameters undetermined (the speed along its normal among them); vx, vy undetermined "
-                           "(aperture problem)", a=a, a_err=a_err, a_source=a_src, **stats, **base)
+                           "(aperture problem)" + note, a=a, a_err=a_err, a_source=a_src, **stats, **base)
         if marg and not ill:
             v_n, v_n_err, lo, hi = self._marginal(prof, 1)
             bounds = (max(lo, 0.0), hi)
@@ -835,13 +925,14 @@ class _Fitter:
             why = ("whose lines do not determine a: over a in "
                    f"[{self.a_grid[0] * 1e3:.1g}, {self.a_grid[-1] * 1e3:.1g}] mm" if marg else "loosely determined:")
             msg = (f"one family of parallel lines (a grating) {why} the speed along its normal spans "
-                   f"{bounds[0]:.3g}-{bounds[1]:.3g} m/s (undetermined); vx, vy undetermined (aperture problem)")
+                   f"{bounds[0]:.3g}-{bounds[1]:.3g} m/s (undetermined); vx, vy undetermined (aperture problem)" + note)
             return LineFit(status, msg, a=None, a_source=a_src, v_n_bounds=bounds, normal_angle=ang,
                            normal_angle_err=ang_err, **stats, **base)
         msg = (f"one family of parallel lines (a grating, {len(slots)} line(s), harmonics "
-               f"{sorted(set(int(h) for h in harm[slots]))}): v_n = {v_n:.4g} +/- {v_n_err:.2g} m/s along the normal at "
+               f"{harmonics}): v_n = {v_n:.4g} +/- {v_n_err:.2g} m/s along the normal at "
                f"{ang:.1f} deg (or its mirror image at -{ang:.1f} deg); the component along the ridges, hence vx, vy, "
-               "is undetermined (aperture problem)" + ("; a marginalised over its plausible range" if marg else ""))
+               "is undetermined (aperture problem)" + ("; a marginalised over its plausible range" if marg else "")
+               + note)
         if p < P_POOR:
             return LineFit(status, f"the model does not explain the line(s) of this family: chi2 {fit.chi2:.1f} "
                            f"for {fit.dof} dof (p = {p:.1g}); its best fit would be v_n = {v_n:.4g} m/s along "

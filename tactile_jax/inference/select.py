@@ -67,6 +67,8 @@ _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_no
 _I_ANISO = (_I["aniso_p"], _I["aniso_q"])
 #: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
 TEXTURES = ("isotropic", "directional")
+#: a poor isotropic fit is explained by a directional lobe when that brings its reduced chi-square this low
+DIRECTIONAL_EXPLAINS = 1.5
 #: ``window_needed`` tests a contact radius measured to worse than this relative error
 WINDOW_TEST_REL_ERR = 0.05
 #: chi2 rise (in units of the covariance scale) below which a -> infinity is not rejected: one-sided 95 %
@@ -287,8 +289,11 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
     refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
     The directional fit starts at the isotropic optimum with the angular factor (p, q) freed; it is
     kept where it lowers ``information_criterion`` (the quasi-likelihood scale is the directional
-    fit's reduced chi-square, so that a misfit it does not remove is not read as evidence).
-    Returns (summary, name, margin in BIC units (the loser's minus the winner's), note).
+    fit's reduced chi-square, so that a misfit it does not remove is not read as evidence), and
+    only if the lobe describes the spectra (reduced chi-square at most ``DIRECTIONAL_EXPLAINS``): a
+    lumpy spectrum of few discrete modes is not a directional texture, and two more parameters
+    fitted to its lumps would turn a poor fit into a confident one.
+    Returns (summary, name, margin in AIC units (the loser's minus the winner's), note).
     """
     if int(summary.status) not in (0, 2, 3):                   # no band or failed: nothing to compare
         return summary, "isotropic", None, ""
@@ -304,6 +309,10 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
                                     kind="aic")
     bic_dir = information_criterion(float(directional.chi2), fr.sum(), n_data, bin_factor=bin_factor, scale=scale,
                                     kind="aic")
+    if float(directional.redchi) > DIRECTIONAL_EXPLAINS:
+        note = (f"a directional lobe lowers the reduced chi-square only to {float(directional.redchi):.2f}: it "
+                "does not describe these spectra" if float(summary.redchi) > DIRECTIONAL_EXPLAINS else "")
+        return summary, "isotropic", None, note
     if bic_dir < bic_iso:
         p, q = (float(directional.theta[i]) for i in _I_ANISO)
         contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)

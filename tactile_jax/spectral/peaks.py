@@ -74,7 +74,10 @@ class Lines(NamedTuple):
     d_omega: bin width, rad/s. dof: effective number of segments K. n_truncated: candidates left
     out beyond ``max_lines`` per pair. shallow_only: (2,) per pair, lines of the shallow PSD that the
     deep probe does not hear coherently; shallow_only_omega, shallow_only_db: (2,) the strongest
-    such line's frequency (rad/s) and shallow level (dB), NaN where none.
+    such line's frequency (rad/s) and shallow level (dB), NaN where none. shallow_power: (2, L) the
+    main-lobe power of each pair's shallow probe (x1, y1) at the mode, the PSD summed over +/- ``SUM``
+    bins times the bin width (a tone's power, signal units squared; None where not measured, as in
+    ``Lines`` built by hand): unlike the levels in dB it does not depend on the noise background.
     """
 
     omega: np.ndarray
@@ -95,6 +98,7 @@ class Lines(NamedTuple):
     shallow_only: np.ndarray
     shallow_only_omega: np.ndarray
     shallow_only_db: np.ndarray
+    shallow_power: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -222,6 +226,7 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
     # shallow probes' own peak there, isolated (else their lobe holds another line's leakage)
     near = np.stack([psd[:, idx + o] for o in (-1, 0, 1)]).max(0) if n else np.zeros((4, 0))
     db = 10.0 * np.log10(near / bg[:, idx]) if n else np.zeros((4, 0))
+    power = np.stack([_lobe_sum(psd[0], idx), _lobe_sum(psd[2], idx)]) * d_omega if n else np.zeros((2, 0))
     own = np.zeros((2, n), bool)
     for p in range(2):
         if n:
@@ -277,7 +282,7 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
         heard[p, n:] &= pair_of[n:] == p
     idx_r = idx[rows]
     log_ratio, err = np.where(heard, log_ratio[:, rows], np.nan), np.where(heard, err[:, rows], np.nan)
-    coh, db = coh[:, rows], db[:, rows]
+    coh, db, power = coh[:, rows], db[:, rows], power[:, rows]
     cross_log, cross_err, cross_coh = cross_log[rows], cross_err[rows], cross_coh[rows]
     # frequency to a fraction of a bin, from the shallow amplitudes of the stronger pair (of the pair that hears it)
     if rows.size:
@@ -293,7 +298,7 @@ def detect_lines(spec, *, max_lines: int = 64, min_db: float = 20.0, iso_db: flo
     sel = sel[np.argsort(omega[sel], kind="stable")]
     return Lines(omega[sel], omega_err[sel], idx_r[sel], heard[:, sel], log_ratio[:, sel], err[:, sel],
                  coh[:, sel], db[0::2][:, sel], db[1::2][:, sel], cross_log[sel], cross_err[sel], cross_coh[sel],
-                 d_omega, float(s.dof), int(n_trunc), shallow_only, so_omega, so_db)
+                 d_omega, float(s.dof), int(n_trunc), shallow_only, so_omega, so_db, power[:, sel])
 
 
 def _information(lines: Lines) -> tuple:
