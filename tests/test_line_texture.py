@@ -172,3 +172,63 @@ def test_bad_arguments_raise():
         fit_lines(lines, (D2, D1))
     with pytest.raises(ValueError):
         fit_lines(lines, (D1, D2), contact_radius=-1.0)
+
+
+def _wire_net_49(other_power_db=0.0, power=True):
+    """The lines of benchmarks/textures.py's wire_net scene 49 (WireNet pitch 0.829 mm at 0.5532 rad, v = (0.010514,
+    0.069650) m/s, a = 1.45 mm, 16 s at 1 kHz), as ``find_lines`` measured them. Lines 2 and 3 (82.64 and 165.29
+    rad/s, heard by both pairs) are one family, k0 = (846, 1059) rad/m at 51.4 deg: lattice modes (23, 27) and
+    (46, 54) aliased by the simulation's 23.5 um texture grid (2 pi / D = 267,602 rad/m), about 35 dB weaker in
+    relief than the net's own lines (345.1 and 407.2 rad/s: the families g1, g2; 62.1 and 752.3: g2 - g1, g1 + g2),
+    each heard by one pair. ``other_power_db`` shifts the shallow powers of the lines outside the family."""
+    nan = np.nan
+    omega = np.array([47.764341, 62.096598, 82.643429, 165.293916, 179.835821, 311.689315, 345.112123, 407.208415,
+                      752.320325])
+    omega_err = np.array([0.006471, 0.006152, 0.006379, 0.012836, 0.053654, 0.030243, 0.006147, 0.006144, 0.00614])
+    heard = np.array([[0, 1, 1, 1, 1, 0, 1, 0, 0], [1, 0, 1, 1, 0, 1, 0, 1, 1]], bool)
+    log_ratio = np.array([[nan, -6.339351, -0.55278, -0.819738, -2.467799, nan, -3.695645, nan, nan],
+                          [-0.550834, nan, -0.598104, -0.995374, nan, -2.520488, nan, -3.693011, -6.314229]])
+    log_ratio_err = np.array([[nan, 0.058246, 0.002877, 0.01103, 0.059547, nan, 0.003134, nan, nan],
+                              [0.000739, nan, 0.000714, 0.007165, nan, 0.075521, nan, 0.002723, 0.026897]])
+    coherence = np.array([[0.997951, 0.856013, 0.99959, 0.994004, 0.850483, 0.027268, 0.999513, 0.066715, 0.022753],
+                          [0.999973, 0.738454, 0.999975, 0.997461, 0.260166, 0.779557, 0.082898, 0.999632, 0.965374]])
+    shallow_db = np.array([[48.05, 65.57, 46.43, 27.97, 23.96, 3.50, 67.23, 3.36, 1.75],
+                           [52.24, 11.26, 53.67, 37.45, 8.21, 29.06, 3.00, 68.36, 71.67]])
+    deep_db = np.array([[48.87, 16.95, 49.35, 27.55, 8.87, 0.97, 36.43, 4.51, 1.43],
+                        [47.61, 7.87, 49.18, 29.56, 0.33, 8.66, 2.23, 36.88, 17.77]])
+    cross_log = np.array([nan, nan, 0.113286, 0.469768, nan, nan, nan, nan, nan])
+    cross_err = np.array([nan, nan, 0.002767, 0.006526, nan, nan, nan, nan, nan])
+    cross_coh = np.array([0.997972, 0.00567, 0.99962, 0.997893, 0.01128, 0.001487, 0.155946, 0.321106, 0.126103])
+    power_db = np.array([[-140.53, -123.69, -141.46, -161.34, -165.14, -188.74, -126.65, -191.11, -192.36],
+                         [-141.52, -182.65, -140.48, -157.27, -185.43, -165.20, -189.82, -126.58, -123.69]])
+    power_db[:, [0, 1, 4, 5, 6, 7, 8]] += other_power_db
+    return Lines(omega, omega_err, np.rint(omega / 3.067962).astype(int), heard, log_ratio, log_ratio_err,
+                 coherence, shallow_db, deep_db, cross_log, cross_err, cross_coh, 3.067961575771282, 13.3132, 0,
+                 np.array([2, 5]), np.array([282.252465, 1159.689476]), np.array([66.41, 68.58]),
+                 10.0 ** (power_db / 10.0) if power else None)
+
+
+@pytest.mark.parametrize("power", [True, False])
+def test_a_weak_family_among_lines_in_other_directions_gives_no_normal_speed(power):
+    """Regression (wire_net scene 49): the two lines heard by both pairs are harmonics of one family, but seven
+    lines at no harmonic of it, far stronger in relief, lie in other directions. It was reported as a grating with
+    v_n = 0.0603 +/- 0.0003 m/s along 51 deg, 21 sigma from the net's families' normal speeds (0.0455, 0.0537 m/s):
+    now no speed (undetermined, the family a minor mode), from the lines' powers or from their dB levels."""
+    res = fit_lines(_wire_net_49(power=power), (D1, D2))
+    assert res.status == "undetermined" and res.texture == "multi", res.message
+    assert res.v_n is None and res.v_n_err is None and res.normal_angle is None
+    assert res.vx is None and res.vy is None and res.speed_bounds is None
+    assert "minor mode" in res.message and "not the texture's" in res.message
+    assert res.lines.used.tolist() == [False, False, True, True] + [False] * 5
+    assert res.lines.harmonic[[2, 3]].tolist() == [1, 2]
+    assert res.a == pytest.approx(1.45e-3, rel=0.05)
+
+
+def test_a_family_as_strong_as_the_other_lines_keeps_its_normal_speed():
+    """The same lines with the others 60 dB weaker in relief: the family is one of the texture's principal
+    directions, so its v_n stays (the texture is still not one grating: texture multi)."""
+    res = fit_lines(_wire_net_49(other_power_db=-60.0), (D1, D2))
+    assert res.status == "undetermined" and res.texture == "multi", res.message
+    assert res.v_n == pytest.approx(82.643429 / math.hypot(846.3, 1059.4), rel=0.02)
+    assert res.normal_angle == pytest.approx(51.4, abs=1.0)
+    assert "other line(s)" in res.message and "not one grating" in res.message

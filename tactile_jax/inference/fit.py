@@ -196,13 +196,17 @@ def with_line_model(res: FitResult, signals, fs: float, depths, options: FitOpti
     return res
 
 
+def _finite_or_none(x):
+    return float(x) if x is not None and np.isfinite(x) else None
+
+
 def result_from_lines(fit, options: FitOptions, *, curvature_radius=None, smooth: FitResult | None = None) -> FitResult:
     """A ``FitResult`` of the line model's ``LineFit``: speeds (or a grating's speed along its normal with
     the other component undetermined), a, the normal's angle; texture "grating" or "lines"."""
     res = FitResult(model="lines", texture="grating" if fit.texture == "grating" else "lines",
                     status=Status(fit.status), message=fit.message, converged=True, solver="optimistix",
-                    redchi=fit.redchi, chi2=fit.chi2, n_bins=int(fit.n_used), n_residuals=int(fit.n_used),
-                    n_params=0)
+                    redchi=_finite_or_none(fit.redchi), chi2=_finite_or_none(fit.chi2), n_bins=int(fit.n_used),
+                    n_residuals=int(fit.n_used), n_params=0)
     bounds = fit.speed_bounds or (None, None)
     for name, value, err, bound in (("vx", fit.vx, fit.vx_err, bounds[0]), ("vy", fit.vy, fit.vy_err, bounds[1])):
         if options.velocity is not None:

@@ -97,7 +97,7 @@ DROP_Z = 4.0
 MAX_HARMONIC = 8
 #: relief-amplitude margin (dB) by which a line in another direction must exceed a family for the family to
 #: count as a minor mode of the texture, whose normal is not reported (its lines' levels over their responses;
-#: simulated nets: principal families within 5 dB of the other lines' bounds, grid-aliased modes 32-56 dB below)
+#: on the simulated nets and plane-wave textures, principal families reach at most +6 dB, grid-aliased modes +30-35 dB)
 MINOR_DB = 20.0
 
 _K_GRID = np.geomspace(20.0, 3e5, 4096)         # rad/m, for inverting the monotone curves
