@@ -62,7 +62,21 @@ def scenes(physics: str, n: int, seed: int = 34):
                        contact_radius=a, window=physics, snr_db=snr, duration=DURATION, fs=FS, seed=s)
 
 
+#: where simulated recordings are kept between runs (``--cache``); None: simulate every time
+_CACHE: Path | None = None
+
+
 def _simulate(scene):
+    cached = _CACHE / f"{scene.window}_{scene.seed}.npz" if _CACHE else None
+    if cached is not None and cached.exists():
+        return tj.read_recording(cached)
+    rec = _simulate_fresh(scene)
+    if cached is not None:
+        tj.write_recording(cached, rec)
+    return rec
+
+
+def _simulate_fresh(scene):
     try:
         return tj.simulate(scene)
     except tj.TactileInputError:       # a large contact at a fast slip: a coarser grid still resolves d1
@@ -184,7 +198,12 @@ def main(argv=None):
     ap.add_argument("--scenes", type=int, default=50, help="scenes per physics")
     ap.add_argument("--physics", default=",".join(PHYSICS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
+    ap.add_argument("--cache", type=Path, default=None, help="folder to keep the simulated recordings in (reused)")
     args = ap.parse_args(argv)
+    global _CACHE
+    _CACHE = args.cache
+    if _CACHE is not None:
+        _CACHE.mkdir(parents=True, exist_ok=True)
     physics = [p.strip() for p in args.physics.split(",") if p.strip()]
     args.out.mkdir(parents=True, exist_ok=True)
     rows = {p: run_physics(p, args.scenes) for p in physics}

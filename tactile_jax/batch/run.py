@@ -317,8 +317,9 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 s = f.summary
                 res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
                                           model=model_name(s.free, vel is not None), segments=r.seg)
+                res.window, res.window_margin = f.window, f.window_margin
                 res.texture, res.texture_margin = f.texture, f.texture_margin
-                res.message = "; ".join(m for m in (res.message, f.texture_note) if m)
+                res.message = "; ".join(m for m in (res.message, *f.notes) if m)
                 res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,
                                       source=src)
                 res.precision = "float64" if jax.config.jax_enable_x64 else "float32"

@@ -18,10 +18,14 @@ from .common import parse_floats, user_errors
 @click.option("--velocity", default=None, help="Known slip vx,vy in m/s for every record: held fixed.")
 @click.option("--fit-gain", is_flag=True, help="Fit the deep/shallow gain ratios instead of holding them.")
 @click.option("--nperseg", type=int, default=None, help="Welch segment length (default: largest 2^k <= N/8, longer for slow slips, per record).")
+@click.option("--window", type=click.Choice(["hertz", "gaussian"]), default=None,
+              help="Contact window (default: the Hertz disk against the Gaussian, chosen per record).")
+@click.option("--texture", type=click.Choice(["isotropic", "directional"]), default=None,
+              help="Texture model (default: chosen per record; line textures go to the line model).")
 @click.option("--no-resume", is_flag=True, help="Start afresh instead of skipping rows already in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line; the summary only.")
 @user_errors
-def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, no_resume, quiet):
+def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, window, texture, no_resume, quiet):
     """Fit slip velocity and contact radius to every record under INPUTS (files or folders).
 
     One row per record (data-contract fields, the source file and the record index).
@@ -35,7 +39,7 @@ def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, npers
     if workers is not None and scheduler is not None:
         raise TactileInputError("give --workers or --scheduler, not both", code="bad_setting")
     known = None if velocity is None else tuple(abs(v) for v in parse_floats(velocity, 2, "velocity"))
-    options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg)
+    options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg, window=window, texture=texture)
     summary = run_batch(list(inputs), out, options=options, chunk_size=chunk_size, workers=workers,
                         scheduler=scheduler, progress=not quiet, resume=not no_resume)
     t = summary.timings

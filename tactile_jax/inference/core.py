@@ -62,6 +62,8 @@ DECREMENT_TOL = 1e-2
 STEP_TOL = 0.1
 _A_CLIP = (2e-5, 0.05)
 _OWN = 3          # vx, vy, a: each its own jackknife scale
+#: a Hertz disk's radius per Gaussian window radius of the same second moment along a probe (a^2/5 = a_g^2/3)
+HERTZ_PER_GAUSS = (5.0 / 3.0) ** 0.5
 
 
 class Settings(NamedTuple):
@@ -73,6 +75,8 @@ class Settings(NamedTuple):
     conditioned: fit the conditioned deep PSDs. chain: blocks of the y pair conditioned on the x pair
     (0: none, 1: y1 on (x1, x2) in place of y1's PSD, 2: also y2 on (x1, x2, y1) in place of the y
     ratio and S22.1). directional: fit the texture's angular factor (p, q) (held at 0 otherwise).
+    hertz: the contact window: None for the Gaussian, or the Hertz window's table coefficients
+    (``model.hertz.hertz_table().coef``: data, so that every record of a window shares one program).
     """
 
     min_snr: float = 1.0
@@ -86,6 +90,7 @@ class Settings(NamedTuple):
     conditioned: bool = True
     chain: int = 2
     directional: bool = False
+    hertz: jax.Array | None = None
 
 
 class Record(NamedTuple):
@@ -238,17 +243,24 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     v0 = jnp.maximum(v0, 1e-3 * v_scale)
     a_rel = jnp.where(have & (a_rel > 0), a_rel, jnp.inf)
     a0 = jnp.clip(jnp.where(jnp.isfinite(a_rel).any(), a_pair[jnp.argmin(a_rel)], 2e-3), *_A_CLIP)
+    if settings.hertz is not None:      # the pair starts are Gaussian radii: a Hertz disk of equal second moment
+        a0 = a0 * HERTZ_PER_GAUSS
     main = jnp.argmax(jnp.where(b.n_band > 0, v0, -jnp.inf))
     k_lo = 0.5 * om[0] / jnp.max(v0)
     k_hi = 25.0 / (2.0 * d1)
     log_knots = jnp.linspace(jnp.log(k_lo), jnp.log(jnp.maximum(k_hi, 4 * k_lo)), N_KNOTS)
     shallow = spec.psd[0::2]
-    k_obs = spec.omega / v0[main]
-    sel = b.band[main] & (k_obs > 0)
-    log_k_obs = jnp.log(jnp.where(k_obs > 0, k_obs, 1.0))
-    phi_obs = (jnp.log(jnp.clip(shallow[main], tiny(shallow), None)) + jnp.log(v0[main]) - 2 * log_g(k_obs, d1, a0)
-               - jnp.log(jnp.sqrt(3 * jnp.pi) / a0))
-    log_phi0 = _knot_start(log_k_obs, phi_obs, sel, log_knots)
+
+    def texture_start(v, axis):
+        """log Phi at the knots from the shallow spectrum of ``axis``'s pair, read at k = omega / v."""
+        k_obs = spec.omega / v
+        sel = b.band[axis] & (k_obs > 0)
+        log_k_obs = jnp.log(jnp.where(k_obs > 0, k_obs, 1.0))
+        phi_obs = (jnp.log(jnp.clip(shallow[axis], tiny(shallow), None)) + jnp.log(v) - 2 * log_g(k_obs, d1, a0)
+                   - jnp.log(jnp.sqrt(3 * jnp.pi) / a0))
+        return _knot_start(log_k_obs, phi_obs, sel, log_knots)
+
+    log_phi0 = texture_start(v0[main], main)
     floors = band_mod.noise_floors(spec)
     noise = jnp.where(settings.noise_floor, floors.at[:, 0].set(-700.0), floors)
     noise0 = jnp.where(settings.noise_floor, jnp.log(jnp.mean(jnp.exp(floors[:, 0]))), -700.0)
@@ -283,12 +295,19 @@ def prepare(record: Record, settings: Settings) -> Prepared:
         xy_c_weight=jnp.sqrt(k_xy), xy_c_offset=digamma(k_xy) - digamma(dof), log_noise=noise,
         prior_center=theta0, prior_inv_sd=prior_inv_sd, smooth_inv_sd=1.0 / jnp.asarray(settings.smoothness))
     # speed starts: as found, and each axis in turn as the major one at its own pair's speed, the other at
-    # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it)
-    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(0.15 * v0[m])) for m in (0, 1)]
+    # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it); with
+    # the Hertz window, whose sharp edge leaks more, also each axis with the other at 0.01 of it
+    minors = (0.15, 0.01) if settings.hertz is not None else (0.15,)
+    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(f * v0[m])) for f in minors for m in (0, 1)]
     iv = jnp.array([i["log_vx"], i["log_vy"]])
     starts = jnp.stack([theta0[iv]] + [jnp.where(known, theta0[iv], s) for s in alt])
+
+    def start(lv):          # each start's texture read at its own major speed
+        axis = jnp.argmax(lv)
+        return theta0.at[iv].set(lv).at[N_PHYS:].set(texture_start(jnp.exp(lv[axis]), axis))
+
     stage1 = free & ((idx >= N_PHYS) | (idx == i["log_ay"]))          # the texture and the y level, physics held
-    return Prepared(data, jax.vmap(lambda lv: theta0.at[iv].set(lv))(starts), free, stage1, b)
+    return Prepared(data, jax.vmap(start)(starts), free, stage1, b)
 
 
 def statistics(theta, r, jac, free):
@@ -304,7 +323,7 @@ def settled_physics(step_sigma, free):
     return jnp.all(jnp.isfinite(step)) & jnp.all(jnp.where(physics, step < STEP_TOL, True))
 
 
-def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi):
+def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi, hertz):
     """Variance scales (P,) from the delete-one-group jackknife, the pooled one, and whether it ran."""
     seg = record.seg
     total = jnp.sum(seg.count)
@@ -324,7 +343,7 @@ def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi):
 
     meas_k = jax.vmap(one)(jnp.arange(seg.count.shape[0]))
     # the blocks are linear in the measured side with the weights held: the model cancels from the change
-    zero = jax.tree.map(jnp.zeros_like, jax.eval_shape(spectra_at_bins, theta, data))
+    zero = jax.tree.map(jnp.zeros_like, jax.eval_shape(spectra_at_bins, theta, data, hertz))
     r0 = blocks(zero, data.meas, data)
     d_r = jax.vmap(lambda m: blocks(zero, m, data))(meas_k) - r0                   # (G, R_data)
     jac_d = jac[:d_r.shape[1]] * free                                               # the data rows
@@ -375,9 +394,11 @@ def core(record: Record, settings: Settings, start: Start | None = None) -> Summ
         free = jnp.where(start.use, start.free, free)
         skip = start.use
     n_first, n_start, n_final = ITERATIONS
-    theta, r, jac, model = levenberg_marquardt(residuals_and_model, starts, prep.data, free, prep.first,
+    theta, r, jac, model = levenberg_marquardt(residuals_and_model, starts, (prep.data, settings.hertz), free,
+                                               prep.first,
                                                n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip)
-    return finish(record, prep.data, free, Located(b.i0, b.n_leak, b.k0, b.speed0), theta, r, jac, model)
+    return finish(record, prep.data, free, Located(b.i0, b.n_leak, b.k0, b.speed0), theta, r, jac, model,
+                  settings.hertz)
 
 
 class Located(NamedTuple):
@@ -409,14 +430,15 @@ def texture_sections(theta, cov, jac, model: ModelSpectra, data: JointData):
     return jnp.stack([k, logp, jnp.sqrt(jnp.clip(var, 0.0, None) + 1.0 / jnp.square(data.s11_weight))])
 
 
-def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra) -> Summary:
+def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra,
+           hertz=None) -> Summary:
     """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals, their
     Jacobian and the model's spectra there."""
     cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     settled = settled_physics(step_sigma, free)
     converged = finite & ((decrement < DECREMENT_TOL) | settled)
-    scales, pooled, ran = _jackknife(record, theta, jac, free, data, b.i0, redchi)
+    scales, pooled, ran = _jackknife(record, theta, jac, free, data, b.i0, redchi, hertz)
     fallback = jnp.maximum(redchi, 1.0) * jnp.maximum(record.seg.bin_factor, 1.0)
     scales = jnp.where(ran, scales, fallback)
     pooled = jnp.where(ran, pooled, fallback)

@@ -53,7 +53,7 @@ def _fit_ratio_only(data, options: FitOptions) -> FitResult:
     omega = np.asarray(data.omega, float)
     log_ratio = np.log(np.asarray(data.ratio, float))
     err = np.asarray(data.ratio_err, float) if data.ratio_err is not None else np.full_like(log_ratio, 0.1)
-    res = FitResult(model="pair", file=data.source, solver=options.solver)
+    res = FitResult(model="pair", window="gaussian", file=data.source, solver=options.solver)
     gains = known_gains(options)
     fits = []
     if data.ratio_err is None:
@@ -142,8 +142,6 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
     options = options_from_file(options, one)
     precision = "float64" if jax.config.jax_enable_x64 else "float32"
     model_select.check_model(options.model, src)
-    if options.model == "hertz":
-        return _fit_hertz(one, options, src, record, precision)
     try:
         r = record_of(one.signals, one.fs, one.depths, options, source=src)
     except TactileInputError as err:
@@ -203,7 +201,7 @@ def _finite_or_none(x):
 def result_from_lines(fit, options: FitOptions, *, curvature_radius=None, smooth: FitResult | None = None) -> FitResult:
     """A ``FitResult`` of the line model's ``LineFit``: speeds (or a grating's speed along its normal with
     the other component undetermined), a, the normal's angle; texture "grating" or "lines"."""
-    res = FitResult(model="lines", texture="grating" if fit.texture == "grating" else "lines",
+    res = FitResult(model="lines", window="gaussian", texture="grating" if fit.texture == "grating" else "lines",
                     status=Status(fit.status), message=fit.message, converged=True, solver="optimistix",
                     redchi=_finite_or_none(fit.redchi), chi2=_finite_or_none(fit.chi2), n_bins=int(fit.n_used),
                     n_residuals=int(fit.n_used), n_params=0)
@@ -279,19 +277,15 @@ def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_rad
     top (see the module). Never raises for a fit that fails: see ``status``."""
     try:
         options = model_select.options_for(options)
-        if options.window != "gaussian":
-            return FitResult(window=options.window, solver=options.solver, status="unsupported",
-                             message=f"the joint model has the Gaussian window only; window {options.window!r} "
-                                     "is not fitted")
         if options.cross_pairs not in (None, 0, 1, 2):
             return FitResult(status="unsupported", message=f"cross_pairs must be None, 0, 1 or 2, not "
                                                            f"{options.cross_pairs!r}")
         settings = settings_of(options, has_xy=has_xy)
-        return _layered(_Refitter(rec, settings), run.fit_one(rec, settings), options, curvature_radius)
+        return _layered(rec, settings, run.fit_one(rec, settings), options, curvature_radius)
     except TactileInputError:
         raise
     except Exception as err:  # a bug or a numerical corner must not sink a batch: report it as data
-        return FitResult(window=options.window, solver=options.solver, status="failed",
+        return FitResult(window=options.window or "hertz", solver=options.solver, status="failed",
                          message=f"the fit failed: {type(err).__name__}: {' '.join(str(err).split())}")
 
 
@@ -309,36 +303,55 @@ class _Refitter(NamedTuple):
 
 
 class Refined(NamedTuple):
-    """``refine``'s outcome: the summary, the texture model chosen, its BIC margin and what to say of it
-    (for the message), and warnings (more solves)."""
+    """``refine``'s outcome: the summary and the settings of the models chosen (their window, hence
+    program), the window and texture models with their margins and what to say of them (``notes``, for
+    the message), and warnings (more solves)."""
 
     summary: Summary
+    settings: Settings
+    window: str
+    window_margin: float | None
     texture: str
     texture_margin: float | None
-    texture_note: str
+    notes: tuple
     warnings: tuple
 
 
 def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> Refined:
-    """What ``fit`` and ``batch`` both do after the pipeline's first solve, through the same program: more
-    solves where the fit has not settled, then the texture model (``select.choose_texture``) unless
-    ``options.texture`` forces one."""
-    refit = _Refitter(rec, settings)
-    notes = []
-    if int(s.status) == FIT_CODES.index(Status.NOT_CONVERGED):
-        s, more = _continue(refit, s)
-        notes.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
-                     if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED) else
-                     f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
-    if options.texture is not None:
-        return Refined(s, model_select.texture_name(s.free), None, "", tuple(notes))
-    s, texture, margin, note = model_select.choose_texture(s, refit, bin_factor=float(rec.seg.bin_factor))
-    return Refined(s, texture, margin, note, tuple(notes))
+    """What ``fit`` and ``batch`` both do after the pipeline's first solve ``s`` under ``settings``: more
+    solves where the fit has not settled; the contact window (``select.choose_window``: the Hertz fit
+    against a Gaussian refit from it) unless ``options.window`` forces one; then the texture model
+    (``select.choose_texture``) unless ``options.texture`` forces one. Every refit runs the program of
+    its window from a given start."""
+    warnings, notes = [], []
+    s, more = settle(rec, settings, s)
+    if more:
+        warnings.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
+                        if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED) else
+                        f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
+    window = "gaussian" if settings.hertz is None else "hertz"
+    window_margin = None
+    bin_factor = float(rec.seg.bin_factor)
+    if options.window is None and settings.hertz is not None:
+        gauss = settings._replace(hertz=None)
+        s, choice, window_margin, note = model_select.choose_window(
+            s, lambda th, fr: settle(rec, gauss, run.refit(rec, gauss, th, fr))[0], bin_factor=bin_factor)
+        if choice == "gaussian":
+            settings, window = gauss, "gaussian"
+        notes.append(note)
+    texture, texture_margin = model_select.texture_name(s.free), None
+    if options.texture is None:
+        s, texture, texture_margin, note = model_select.choose_texture(s, _Refitter(rec, settings),
+                                                                       bin_factor=bin_factor)
+        notes.append(note)
+    return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
+                   tuple(warnings))
 
 
-def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
-    refined = refine(refit.rec, refit.settings, s, options)
+def _layered(rec: Record, settings: Settings, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
+    refined = refine(rec, settings, s, options)
     s = refined.summary
+    refit = _Refitter(rec, refined.settings)
     warnings = list(refined.warnings)
     chosen, window_weak, note = _select(refit, s, options)
     margin = None
@@ -348,8 +361,9 @@ def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius
     res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
                               window_weak=window_weak, segments=refit.rec.seg)
     res.model_margin = margin
+    res.window, res.window_margin = refined.window, refined.window_margin
     res.texture, res.texture_margin = model_select.texture_name(s.free), refined.texture_margin
-    res.message = "; ".join(m for m in (res.message, refined.texture_note) if m)
+    res.message = "; ".join(m for m in (res.message, *refined.notes) if m)
     add_profiles(res, s, refit, profile_minor=options.profile_minor)
     if note and note.startswith("model "):
         res.message = "; ".join(m for m in (note, res.message) if m)
@@ -360,7 +374,7 @@ def _layered(refit: _Refitter, s: Summary, options: FitOptions, curvature_radius
         res.texture_x, res.texture_y = texture_sections(s)
     except Exception as err:  # pragma: no cover - reporting extra, never fatal
         res.warnings.append(f"texture cross-sections not computed: {err}")
-    res.problem = _problem(s, res, curvature_radius)
+    res.problem = _problem(s, res, curvature_radius, refined.settings.hertz)
     res.data = s.data
     res.summary = s
     model_select.annotate(res)
@@ -397,28 +411,10 @@ def _select(refit: _Refitter, s: Summary, options: FitOptions):
     return None, False, ""
 
 
-def _problem(s: Summary, res: FitResult, curvature_radius) -> FitProblem:
+def _problem(s: Summary, res: FitResult, curvature_radius, hertz=None) -> FitProblem:
     scales = np.asarray(s.scales)
     pooled = float(s.pooled)
-    return FitProblem(residuals=joint_residuals, args=s.data, theta=np.asarray(s.theta),
+    return FitProblem(residuals=joint_residuals, args=(s.data, hertz), theta=np.asarray(s.theta),
                       free=tuple(bool(f) for f in np.asarray(s.free)), names=res.names, lower=_bounds(s.theta.size, 0),
                       upper=_bounds(s.theta.size, 1), cov=np.asarray(s.cov), scale=pooled,
                       to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scales / pooled))
-
-
-def _hertz_spectra(one, options):
-    from ..spectral.estimate import estimate_spectra
-
-    kw = {"nperseg": options.nperseg} if (options.nperseg and options.method == "welch") else {}
-    return estimate_spectra(np.asarray(one.signals, float), one.fs, method=options.method, prewhiten=options.prewhiten,
-                            **kw)
-
-
-def _fit_hertz(one, options, src, record, precision) -> FitResult:
-    try:
-        spec = _hertz_spectra(one, options)
-    except TactileInputError as err:
-        raise err.with_source(src) from None
-    res = model_select.fit_hertz(spec, one.depths, options, one.curvature_radius)
-    res.file, res.index, res.truth, res.precision = one.source, record, dict(one.truth), precision
-    return res

@@ -102,12 +102,14 @@ def _window_average(half, sign, weight, idx, log_kernel):
     return top, jnp.sum(jnp.exp(terms - top[..., None]) * (sign * weight)[:, idx], axis=-1)
 
 
-def spectra_at_bins(theta, data: JointData) -> ModelSpectra:
-    """``ModelSpectra`` of the parameters ``theta`` (P,) for ``data``."""
+def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
+    """``ModelSpectra`` of the parameters ``theta`` (P,) for ``data``, under the Gaussian contact window, or
+    under the Hertz window where ``hertz`` holds its table's coefficients (``model.hertz``)."""
     i = INDEX
     phys = jnp.exp(jnp.stack([theta[i["log_vx"]], theta[i["log_vy"]], theta[i["log_a"]]]))
     aniso = jnp.stack([theta[i["aniso_p"]], theta[i["aniso_q"]]])
-    dens, sign = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots)  # (10, F)
+    dens, sign = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots,
+                            None if hertz is None else 1, hertz)                                # (10, F)
     # gains and levels: x2 has gx, y1 the level ay (power), y2 both (amplitudes: half the power's log)
     level, gx, gy = theta[i["log_ay"]], theta[i["log_gx"]], theta[i["log_gy"]]
     amp = jnp.stack([0.0, gx, 0.5 * level, 0.5 * level + gy])

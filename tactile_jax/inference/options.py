@@ -7,9 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import TactileInputError
 from .core import Settings
 
-__all__ = ["FitOptions", "settings_of", "options_from_file", "known_gains"]
+__all__ = ["FitOptions", "WINDOWS", "settings_of", "options_from_file", "known_gains"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +38,9 @@ class FitOptions:
         the y pair's ratio and S22.1.
     profile_minor: give a speed component below ``MINOR_PROFILE`` of the other a
         profile-likelihood interval (``FitResult.vx_lo`` ...).
-    window: "gaussian" (the joint model's window).
+    window: the contact window: None (default: the Hertz disk, a fingertip's contact, against the
+        Gaussian of the paper's closed forms, chosen per record by chi-square and reported with its
+        margin in ``FitResult.window``), "hertz" or "gaussian".
     texture: the texture model: None (default: isotropic, or directional where the isotropic fit
         does not describe the spectra and the directional one does, chosen per record and reported
         in ``FitResult.texture``), "isotropic" (Phi(|k|)) or "directional" (Phi(|k|) times a
@@ -68,14 +71,27 @@ class FitOptions:
     conditioned: bool = True
     cross_pairs: int | None = None
     profile_minor: bool = True
-    window: str = "gaussian"
+    window: str | None = None
     texture: str | None = None
     model: str | None = None
     solver: str = "optimistix"
 
 
-def settings_of(options: FitOptions, *, has_xy: bool = True) -> Settings:
-    """The pipeline's ``Settings`` (data, not a new program) for ``options``."""
+WINDOWS = ("hertz", "gaussian")
+
+
+def settings_of(options: FitOptions, *, has_xy: bool = True, window: str | None = None) -> Settings:
+    """The pipeline's ``Settings`` (data, not a new program) for ``options``; ``window`` overrides
+    ``options.window`` (None: the Hertz window, which the default fits first)."""
+    window = window or options.window or "hertz"
+    if window not in WINDOWS:
+        raise TactileInputError(f"window must be one of {', '.join(WINDOWS)} or None, got {window!r}",
+                                code="bad_setting")
+    hertz = None
+    if window == "hertz":
+        from ..model.hertz import hertz_table
+
+        hertz = hertz_table().coef
     chain = (2 if has_xy else 0) if options.cross_pairs is None else int(options.cross_pairs)
     return Settings(min_snr=float(options.min_snr), max_err=float(options.max_err),
                     fmin=-np.inf if options.fmin is None else float(options.fmin),
@@ -83,7 +99,7 @@ def settings_of(options: FitOptions, *, has_xy: bool = True) -> Settings:
                     leakage_db=float(options.leakage_db), smoothness=float(options.smoothness),
                     noise_floor=bool(options.noise_floor), fit_gain=bool(options.fit_gain),
                     conditioned=bool(options.conditioned), chain=chain if has_xy else 0,
-                    directional=options.texture == "directional")
+                    directional=options.texture == "directional", hertz=hertz)
 
 
 def options_from_file(options: FitOptions, rec) -> FitOptions:

@@ -47,12 +47,15 @@ def priors(theta, data: JointData):
     return jnp.concatenate([prior, smooth])
 
 
-def residuals_and_model(theta, data: JointData):
-    """All weighted residuals (``blocks`` then the ``n_prior`` priors) and the model's spectra."""
-    model = spectra_at_bins(theta, data)
+def residuals_and_model(theta, args):
+    """All weighted residuals (``blocks`` then the ``n_prior`` priors) and the model's spectra.
+
+    args: (``JointData``, the Hertz table's coefficients or None for the Gaussian window)."""
+    data, hertz = args
+    model = spectra_at_bins(theta, data, hertz)
     return jnp.concatenate([blocks(model, data.meas, data), priors(theta, data)]), model
 
 
-def residuals(theta, data: JointData):
-    """All weighted residuals: ``blocks`` then the priors (``n_prior`` of them)."""
-    return residuals_and_model(theta, data)[0]
+def residuals(theta, args):
+    """All weighted residuals: ``blocks`` then the priors (``n_prior`` of them); args as ``residuals_and_model``."""
+    return residuals_and_model(theta, args)[0]

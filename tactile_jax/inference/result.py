@@ -115,7 +115,8 @@ class FitResult:
     k0x: float | None = None
     k0y: float | None = None
     model: str = "joint-2d"
-    window: str = "gaussian"
+    window: str = "hertz"
+    window_margin: float | None = None
     texture: str = "isotropic"
     texture_margin: float | None = None
     converged: bool = False
@@ -180,7 +181,7 @@ class FitResult:
                 column = quantity if field == "value" else (f"{quantity}_err" if field == "err"
                                                             else f"{quantity}_{field}")
                 row[column] = plain(getattr(self.estimates[quantity], field))
-        for extra in ("texture", "texture_margin", "redchi", "n_bins", "cond", "aic", "bic", "solver", "precision", "model_margin",
+        for extra in ("window_margin", "texture", "texture_margin", "redchi", "n_bins", "cond", "aic", "bic", "solver", "precision", "model_margin",
                       "error_scale", "error_method", "cross_pairs"):
             row[extra] = plain(getattr(self, extra))
         if self.posterior is not None:

@@ -88,11 +88,13 @@ def _single_core():
                 export.register_namedtuple_serialization(t, serialized_name=f"tactile_jax.{t.__name__}")
             except ValueError:          # registered already
                 pass
-        path = Path(cache).parent / "export" / f"core-{_source_key()}.bin"
-        state = {}
+        states = {}
 
         def call(rec, settings, start):
+            window = "gaussian" if settings.hertz is None else "hertz"     # one program per window
+            state = states.setdefault(window, {})
             if "exp" not in state:
+                path = Path(cache).parent / "export" / f"core-{window}-{_source_key()}.bin"
                 if path.exists():
                     state["exp"] = export.deserialize(bytearray(path.read_bytes()))
                 else:

@@ -7,15 +7,12 @@ The models differ only in which entries of the joint model's parameter vector
     slip           slip velocity and texture; the window is negligible
                    (a -> infinity: a is held at ``A_NEGLIGIBLE`` and reported
                    as a 95 % lower bound, R = exp(-alpha eps), Eq. 5)
-    window         + the Gaussian contact window (a free): the default (model None
-                   adds gains / noise floor as FitOptions.fit_gain / noise_floor say)
+    window         + the contact window (a free; Hertz or Gaussian, ``choose_window``): the
+                   default (model None adds gains / noise floor as FitOptions.fit_gain /
+                   noise_floor say)
     window+gain    + unknown deep/shallow gain ratios of both pairs
     window+noise   + a white noise floor on the shallow probes
     window+gain+noise
-    hertz          each pair alone with the Hertz-window R curve (Eq. 12,
-                   ``pair_fit``): the Hertz window is not separable, so the
-                   joint 2-D model has no Hertz form (docs/model.md); forced only
-
 A velocity known from the arm (paper section 4.3, ``FitOptions.velocity``)
 is held fixed in every model and the name gets ``+v_known``.
 
@@ -47,18 +44,19 @@ __all__ = [
     "Selection",
     "annotate",
     "check_model",
-    "fit_hertz",
     "information_criterion",
     "model_name",
     "options_for",
     "select",
     "texture_name",
     "choose_texture",
+    "choose_window",
+    "WINDOW_DECISIVE",
     "TEXTURES",
     "window_needed",
 ]
 
-MODELS = ("auto", "slip", "window", "window+gain", "window+noise", "window+gain+noise", "hertz")
+MODELS = ("auto", "slip", "window", "window+gain", "window+noise", "window+gain+noise")
 #: contact radius (m) standing for "no window": its offset 3 (d2^2 - d1^2) / (2 a^2) is 1e-4 at the paper's depths
 A_NEGLIGIBLE = 0.1
 
@@ -67,6 +65,8 @@ _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_no
 _I_ANISO = (_I["aniso_p"], _I["aniso_q"])
 #: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
 TEXTURES = ("isotropic", "directional")
+#: a window margin (chi-square in units of the correlated-bin scale) at least this large decides between the windows
+WINDOW_DECISIVE = 6.0
 #: a poor isotropic fit is explained by a directional lobe when that brings its reduced chi-square this low
 DIRECTIONAL_EXPLAINS = 1.5
 #: ``window_needed`` tests a contact radius measured to worse than this relative error
@@ -106,7 +106,7 @@ def check_model(name: str | None, source: str | None = None) -> str | None:
 def options_for(options):
     """``FitOptions`` with the flags a named model needs (fit_gain, noise_floor); None, auto and hertz unchanged."""
     name = check_model(options.model)
-    if name in (None, "auto", "hertz"):
+    if name in (None, "auto"):
         return options
     return dataclasses.replace(options, fit_gain="gain" in name, noise_floor="noise" in name)
 
@@ -220,64 +220,6 @@ def annotate(res) -> None:
         res.message = "; ".join([m for m in [said] if m] + extra)
 
 
-def fit_hertz(spec, depths, options, curvature_radius=None):
-    """The "hertz" model: each pair's log amplitude ratio alone with the Hertz R curve (``pair_fit``).
-
-    Started from the Gaussian exact fit of the same pair. Valid for slip
-    along one axis (the curve assumes a texture along the slip, ky = 0).
-    """
-    from .options import known_gains
-    from .pair_fit import fit_pair
-    from .result import FitResult, set_contact_depth
-    from ..spectral.estimate import amplitude_ratio, usable_band, whitened_psd
-
-    d1, d2 = (float(v) for v in depths)
-    ratio = amplitude_ratio(spec)
-    band = np.asarray(usable_band(ratio, min_snr=options.min_snr, max_err=options.max_err, fmin=options.fmin,
-                                  fmax=options.fmax))
-    omega, lr, err = (np.asarray(v) for v in (ratio.omega, ratio.log_ratio, ratio.log_ratio_err))
-    gains = known_gains(options)
-    res = FitResult(model="hertz", window="hertz", solver=options.solver)
-    # the curve holds for slip along one axis: the pair with the most shallow power in its band is that
-    # axis; the other pair hears only window leakage, whose ratio says nothing about its speed (docs/model.md)
-    psd = np.asarray(spec.psd)
-    power = [float(np.sum(psd[2 * p][band[p]])) if band[p].sum() >= 5 else -1.0 for p in range(2)]
-    major = int(np.argmax(power))
-    fits = [None, None]
-    for p in (major,):
-        if band[p].sum() < 5:
-            continue
-        kw = dict(gain_ratio=gains[p], fit_gain=options.fit_gain, kernel=spec.kernel, bin_factor=spec.bin_factor,
-                  spectrum=np.asarray(whitened_psd(spec)[2 * p]), solver=options.solver)
-        if options.velocity is not None:
-            kw["speed0"] = max(options.velocity[p], 1e-4)
-        g = fit_pair(omega, lr[p], err[p], band[p], d1, d2, curve="exact", **kw)
-        if np.isfinite(g.speed) and np.isfinite(g.a):
-            kw.update(speed0=g.speed, a0=g.a)
-        fits[p] = fit_pair(omega, lr[p], err[p], band[p], d1, d2, curve="hertz", **kw)
-    ok = [f for f in fits if f is not None]
-    if not ok:
-        res.status, res.message = "no_band", "fewer than 5 usable bins in either pair"
-        return res
-    f = fits[major]
-    res.set(("vx", "vy")[major], value=f.speed, err=f.speed_err)
-    ok = [f]
-    res.set("a", value=f.a, err=f.a_err)
-    res.converged = all(f.converged for f in ok)
-    res.status = "ok" if res.converged else "not_converged"
-    res.redchi = float(np.mean([f.redchi for f in ok]))
-    res.n_bins = int(sum(f.n_bins for f in ok))
-    res.set("gain_ratio", value=f.gain_ratio, err=f.gain_ratio_err if options.fit_gain else None,
-            fixed=not options.fit_gain)
-    set_contact_depth(res, curvature_radius)
-    other = ("vx", "vy")[1 - major]
-    res.message = (f"Hertz window: the {('x', 'y')[major]} pair (most power) fitted alone with the Hertz R curve "
-                   f"of a texture along the slip; {other} not determined by this model (slip along one axis "
-                   "assumed; the joint 2-D model has the separable Gaussian window only)")
-    annotate(res)
-    return res
-
-
 def texture_name(free) -> str:
     """The texture model a free mask fits: "directional" where the angular factor is free."""
     return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
@@ -321,3 +263,38 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
                 f"{angle:.0f} deg, anisotropy {(1 + contrast) / (1 - contrast):.2f}")
         return directional, "directional", bic_iso - bic_dir, note
     return summary, "isotropic", bic_dir - bic_iso, ""
+
+
+def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
+    """The contact window of one record: the Hertz fit ``summary`` against the Gaussian window.
+
+    refit_gaussian(theta, free) -> ``core.Summary``: the Gaussian window's program from ``theta``. It
+    starts from the Hertz optimum with the radius scaled to the Gaussian window of the same second
+    moment. Both models have the same parameters, so the criterion is the chi-square difference in
+    units of the correlated-bin scale (the bin factor times the larger reduced chi-square, at least 1):
+    positive favours Hertz. Below ``WINDOW_DECISIVE`` the data cannot tell the windows apart; the
+    Hertz estimates (a fingertip's contact is a Hertz disk) are kept and the note gives the Gaussian
+    window's speeds and radius beside them. Returns (summary, "hertz" or "gaussian", margin, note).
+    """
+    from .core import HERTZ_PER_GAUSS
+
+    if int(summary.status) not in (0, 2, 3):                   # no band or failed: nothing to compare
+        return summary, "hertz", None, ""
+    theta = np.asarray(summary.theta).copy()
+    theta[_I_A] -= np.log(HERTZ_PER_GAUSS)
+    gauss = refit_gaussian(theta, np.asarray(summary.free, bool))
+    chi_h, chi_g = float(summary.chi2), float(gauss.chi2)
+    if not np.isfinite(chi_g):
+        return summary, "hertz", None, "the Gaussian window did not fit"
+    scale = max(float(bin_factor), 1.0) * max(float(summary.redchi), float(gauss.redchi), 1.0)
+    margin = (chi_g - chi_h) / scale
+    if margin >= WINDOW_DECISIVE:
+        return summary, "hertz", margin, ""
+    if margin <= -WINDOW_DECISIVE:
+        return gauss, "gaussian", -margin, (f"Gaussian contact window (chi-square margin {-margin:.1f} over the "
+                                            "Hertz disk)")
+    vx, vy, a = np.exp(np.asarray(gauss.theta)[[_I["log_vx"], _I["log_vy"], _I_A]])
+    note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): the Hertz window's estimates "
+            f"are given; the Gaussian window gives |vx| = {100 * vx:.4g}, |vy| = {100 * vy:.4g} cm/s, "
+            f"a = {1e3 * a:.4g} mm")
+    return summary, "hertz", margin, note

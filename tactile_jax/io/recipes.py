@@ -36,7 +36,7 @@ __all__ = ["Recipe", "list_recipes", "load_recipe", "recipe_options", "scene_fro
 _TOP_KEYS = ("description", "fit", "simulate", "sweep")
 _TEXTURES = ("RandomTexture", "DirectionalTexture", "ModeTexture", "Grating", "WireNet")
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(FitOptions)}
-_CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"),
+_CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"), "texture": ("isotropic", "directional"),
             "model": MODELS}
 
 

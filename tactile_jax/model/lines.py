@@ -40,19 +40,26 @@ import jax.numpy as jnp
 from .._numerics import tiny
 from .._quadrature import gauss_legendre
 from .r_curve import log_g
+from . import hertz as hertz_mod
 from .spline import log_phi_at
 
 __all__ = ["ENTRIES", "N_NODES", "log_matrix", "log_angular"]
 
 #: (channel, channel) of each entry of ``log_matrix``; channels (x1, x2, y1, y2)
 ENTRIES = ((0, 0), (0, 1), (1, 1), (2, 2), (2, 3), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3))
-#: Gauss-Legendre nodes per panel (six panels per line)
+#: Gauss-Legendre nodes per panel (six panels per line); a program with the Hertz window has more
 N_NODES = 12
+N_NODES_HERTZ = 24
+#: the Hertz window's line response is followed to |k| a = HERTZ_REACH across the probe
+HERTZ_REACH = 24.0
 _LOG_EDGE = 25.0        # a factor's reach: where it has fallen exp(-25) below its peak
 
 
-def _nodes(p, omega, d1, d2):
+def _nodes(p, omega, d1, d2, window=None, hertz_coef=None):
     """Nodes of the line k . v = omega for (vx, vy, a) = p at omega (F,) >= 0, rad/s.
+
+    window: the contact window, 0 Gaussian or 1 Hertz (a traced scalar); hertz_coef: the Hertz
+    table's coefficients (``hertz.hertz_table().coef``), or None for a Gaussian-only program.
 
     Returns log|k| (F, N), the log quadrature weights including 1 / |v_u| (F, N; -2e4 where a
     panel is empty), the four channels' factors as a log envelope and a signed mantissa
@@ -60,8 +67,16 @@ def _nodes(p, omega, d1, d2):
     cos 2 theta, sin 2 theta of the nodes' direction (F, N) each.
     """
     vx, vy, a = p[0], p[1], p[2]
+    hertz = hertz_coef is not None
+    # a window given as a Python number is a static choice: only that window's factors are computed
+    static = window is None or isinstance(window, (int, float))
+    only_hertz = hertz and static and window == 1
+    only_gauss = not hertz or (static and window != 1)
     k_g = _LOG_EDGE / (2.0 * d1)
-    k_l = (3.0 * _LOG_EDGE) ** 0.5 / a
+    # the window's reach across a probe: the Gaussian's exp(-25); the Hertz disk's spectrum falls only as
+    # (k a)^-2 in amplitude, and its line response is followed to HERTZ_REACH / a
+    k_gauss, k_hertz = (3.0 * _LOG_EDGE) ** 0.5 / a, HERTZ_REACH / a
+    k_l = k_hertz if only_hertz else (k_gauss if only_gauss else jnp.where(window == 1, k_hertz, k_gauss))
     by_ky = vx >= vy
     v_u = jnp.where(by_ky, vx, vy)
     v_o = jnp.where(by_ky, vy, vx)
@@ -81,7 +96,7 @@ def _nodes(p, omega, d1, d2):
     inner = [jnp.zeros_like(omega), jnp.where(has_o, omega / safe, jnp.inf), jnp.full_like(omega, -k_l),
              jnp.full_like(omega, k_l), jnp.where(has_o, (omega - k_l * v_u) / safe, -jnp.inf)]
     cuts = jnp.sort(jnp.stack([lo] + [jnp.clip(c, lo, hi) for c in inner] + [hi]), axis=0)     # (7, F)
-    x, w = (jnp.asarray(t, omega.dtype) for t in gauss_legendre(N_NODES))
+    x, w = (jnp.asarray(t, omega.dtype) for t in gauss_legendre(N_NODES_HERTZ if hertz else N_NODES))
     half = 0.5 * (cuts[1:] - cuts[:-1])                                                      # (6, F)
     mid = 0.5 * (cuts[1:] + cuts[:-1])
     u = jnp.moveaxis(mid[..., None] + half[..., None] * x, 0, 1).reshape(omega.shape[0], -1)    # (F, N)
@@ -99,8 +114,18 @@ def _nodes(p, omega, d1, d2):
     # one log_g over the four channels (written four times it compiles four times)
     k_s = jnp.stack([kx, kx, ky, ky])
     depth = jnp.stack([d1, d2, d1, d2])[:, None, None]
-    ch = log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx])
-    return log_k, log_w, ch, jnp.ones_like(ch), cos2, sin2
+    if not only_hertz:
+        g_env = log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx])
+        if only_gauss:
+            return log_k, log_w, g_env, jnp.ones_like(g_env), cos2, sin2
+    table = hertz_mod.HertzTable(hertz_coef, hertz_mod.hertz_table().meta)
+    h_env, h_mant = hertz_mod.hertz_factors(k_s, jnp.stack([ky, ky, kx, kx]), jnp.stack([d1, d2]), a, table,
+                                            depth_index=(0, 1, 0, 1))
+    h_env, h_mant = h_env.astype(kx.dtype), h_mant.astype(kx.dtype)
+    if only_hertz:
+        return log_k, log_w, h_env, h_mant, cos2, sin2
+    use = window == 1
+    return log_k, log_w, jnp.where(use, h_env, g_env), jnp.where(use, h_mant, 1.0), cos2, sin2
 
 
 def log_angular(cos2, sin2, aniso):
@@ -137,15 +162,16 @@ def _log_abs(top, total):
 
 
 @jax.custom_jvp
-def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots):
+def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz_coef=None):
     """log|S| and sign of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s:
     (10, F) each.
 
     p: (vx, vy, a) in m/s, m/s, m (positive). log_phi: (n,) log texture spectrum at the knots
     ``log_k_knots`` (log rad/m). aniso: (2,) the angular factor's (p, q) (0, 0: isotropic).
-    depths: (2,) d1, d2 in m. No gains, levels or noise.
+    depths: (2,) d1, d2 in m. window: 0 Gaussian, 1 Hertz (traced; None: Gaussian); hertz_coef: the
+    Hertz table's coefficients (None: a Gaussian-only program). No gains, levels or noise.
     """
-    log_k, log_w, env, mant, cos2, sin2 = _nodes(p, omega, depths[0], depths[1])
+    log_k, log_w, env, mant, cos2, sin2 = _nodes(p, omega, depths[0], depths[1], window, hertz_coef)
     base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
     top, _, total = _signed_sum(*_entries(base, env, mant))
     return _log_abs(top, total)
@@ -153,11 +179,11 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots):
 
 @log_matrix.defjvp
 def _log_matrix_jvp(primals, tangents):
-    p, log_phi, aniso, omega, depths, log_k_knots = primals
+    p, log_phi, aniso, omega, depths, log_k_knots, window, hertz_coef = primals
     p_dot, phi_dot, aniso_dot = tangents[0], tangents[1], tangents[2]
     d1, d2 = depths[0], depths[1]
     # the nodes and their three tangents, one jvp each
-    fn = lambda q: _nodes(q, omega, d1, d2)                                        # noqa: E731
+    fn = lambda q: _nodes(q, omega, d1, d2, window, hertz_coef)                    # noqa: E731
     node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
     log_k, log_w, env, mant, cos2, sin2 = node_t[0][0]
     d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
