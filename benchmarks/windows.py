@@ -114,6 +114,31 @@ def run_physics(physics: str, n: int, verbose: bool = True) -> list[dict]:
     return rows
 
 
+def core_cost(n: int = 6, repeat: int = 5) -> dict:
+    """Warm time of one joint solve (``inference.run.fit_one``, the compiled core) per window on the same
+    records (the first scenes of each physics), medians over ``repeat`` calls each; and their ratio."""
+    from tactile_jax.inference import run
+    from tactile_jax.inference.fit import record_of
+    from tactile_jax.inference.options import settings_of
+
+    recs = [_simulate(sc) for p in PHYSICS for sc in list(scenes(p, n // 2))]
+    out = {}
+    for window in ("gaussian", "hertz"):
+        options = tj.FitOptions(window=window)
+        settings = settings_of(options)
+        times = []
+        for rec in recs:
+            r = record_of(rec.signals, rec.fs, rec.depths, options)
+            run.fit_one(r, settings)                                   # compile / warm
+            for _ in range(repeat):
+                t0 = time.perf_counter()
+                run.fit_one(r, settings)
+                times.append(time.perf_counter() - t0)
+        out[window] = float(np.median(times))
+    out["ratio"] = out["hertz"] / out["gaussian"]
+    return out
+
+
 def _f(v, s=100.0):
     return "-" if v is None else f"{s * v:.3f}"
 
@@ -212,8 +237,11 @@ def main(argv=None):
 
     machine = (f"{platform.machine()}, {platform.system()}, Python {platform.python_version()}, jax {jax.__version__} "
                f"(jaxlib {jaxlib.__version__}), numpy {np.__version__}")
+    cost = core_cost()
     print(f"\nmachine: {machine}\n\n{table(summary)}")
-    (args.out / "windows.json").write_text(json.dumps({"machine": machine, "summary": summary, "rows": rows},
+    print(f"\none joint solve, warm (median): Gaussian {cost['gaussian']:.3f} s, Hertz {cost['hertz']:.3f} s, "
+          f"ratio {cost['ratio']:.2f}")
+    (args.out / "windows.json").write_text(json.dumps({"machine": machine, "summary": summary, "rows": rows, "core_cost": cost},
                                                       indent=1, default=str))
     figure(rows, args.out / "windows.png")
     print(f"\nwrote {args.out / 'windows.json'} and {args.out / 'windows.png'}")

@@ -21,7 +21,8 @@ def test_every_shipped_recipe_loads_and_names_a_known_model():
     assert {"default", "auto", "large_contact", "uncalibrated_gains", "noisy", "slow_slip", "hertz_window"} <= names
     for r in recipes:
         assert isinstance(r.options, FitOptions)
-        assert r.options.model in MODELS
+        assert r.options.model is None or r.options.model in MODELS
+        assert r.options.window in (None, "gaussian", "hertz")
         assert r.description
         if r.simulate is not None:
             scene = scene_from_recipe(r)

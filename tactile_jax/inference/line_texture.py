@@ -77,7 +77,7 @@ NMAX = 32
 #: plausible contact radii (m) over which an undetermined a is marginalised
 A_RANGE = (0.5e-3, 10e-3)
 #: floors (natural-log units) added in quadrature to the Bendat-Piersol errors of the pairs' ratios and of
-#: the cross-pair level (calibrated on simulated gratings, nets and plane-wave textures: NOTES)
+#: the cross-pair level (calibrated on simulated gratings, nets and plane-wave textures)
 RATIO_FLOOR = 3e-4
 CROSS_FLOOR = 3e-4
 #: chi2 p-value below which a fit is ``poor_fit``

@@ -48,11 +48,10 @@ class FitOptions:
     model: the scene model (``select.MODELS``): None (default: slip and contact window,
         plus gains / noise floor as ``fit_gain`` / ``noise_floor`` say; a window the data do
         not need is reported as a lower bound on a), "slip" (window negligible), "window",
-        "window+gain", "window+noise", "window+gain+noise" (these set the two flags), "hertz"
-        (each pair with the Hertz curve) or "auto" (chosen per recording by BIC; the choice
-        and margin are in the result).
-    solver: "optimistix" (Levenberg-Marquardt) or "jaxopt", for ratio-only spectra and the
-        Hertz model, which fit each pair alone.
+        "window+gain", "window+noise", "window+gain+noise" (these set the two flags) or "auto"
+        (chosen per recording by BIC; the choice and margin are in the result).
+    solver: "optimistix" (Levenberg-Marquardt) or "jaxopt", for ratio-only spectra, which fit
+        each pair alone.
     """
 
     method: str = "welch"

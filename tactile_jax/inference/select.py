@@ -35,6 +35,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..errors import TactileInputError
+from .core import POOR_FIT_REDCHI
 from .forward import PARAMS
 
 __all__ = [
@@ -252,8 +253,9 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
     bic_dir = information_criterion(float(directional.chi2), fr.sum(), n_data, bin_factor=bin_factor, scale=scale,
                                     kind="aic")
     if float(directional.redchi) > DIRECTIONAL_EXPLAINS:
+        poor = float(summary.redchi) > POOR_FIT_REDCHI and float(directional.redchi) < float(summary.redchi)
         note = (f"a directional lobe lowers the reduced chi-square only to {float(directional.redchi):.2f}: it "
-                "does not describe these spectra" if float(summary.redchi) > DIRECTIONAL_EXPLAINS else "")
+                "does not describe these spectra" if poor else "")
         return summary, "isotropic", None, note
     if bic_dir < bic_iso:
         p, q = (float(directional.theta[i]) for i in _I_ANISO)

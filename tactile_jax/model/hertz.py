@@ -11,7 +11,7 @@ even in ks and kp, real, band-limited in kappa (the 2-D Fourier transform of
 (2/pi) P_delta(u) sqrt(1 - u^2 - v^2) on the unit disk), -> exp(-|ks| d) as a -> inf at kp = 0,
 and it changes sign at large kappa (the disk's edge).  The y pair uses (ks, kp) = (ky, kx).
 
-Design (details and measured numbers in NOTES.md).
+Design (the measured accuracy and cost are in docs/model.md and docs/validation.md).
 * Table (|kappa_s|, |kappa_p| up to ``kmax`` = 160, delta in [0.01, 5]): Hn on a uniform grid in
   (kappa_s, kappa_p) (spacing ``h`` = 0.6) and in t = log(delta) (spacing ``dt`` = 0.07), as a
   tensor-product B-spline of degree 7 (not-a-knot ends, the exact even mirror at kappa = 0).
@@ -583,7 +583,7 @@ def _dsmoothstep(x: _D):
 
 
 def _dfar(ks: _D, kp: _D, delta: _D):
-    """Leading large-kappa form of Hn with partials (kappa_s, kappa_p >= 0, kappa >~ 100; NOTES.md).
+    """Leading large-kappa form of Hn with partials (kappa_s, kappa_p >= 0, kappa >~ 100).
 
     Near the kappa_s axis: exact pole term + the disk edge's stationary point,
     bulk - 4 P_delta(u0) cos(kappa) / kappa^2, u0 = kappa_s / kappa.  Near the kappa_p axis: the
@@ -742,7 +742,7 @@ def hertz_hn(k_s, k_p, depths, a, table: HertzTable | None = None, depth_index=N
     depths: (D,) probe depths, m. a: contact radius (scalar), m.
     depth_index: static tuple, channel -> depth (default: identity if C = D, (0, 1, 0, 1) if
     C = 4 and D = 2). far_field: static; False replaces the large-kappa asymptote beyond the table
-    by a smooth cut-off to 0 (cheaper when nodes reach beyond kappa ~ 148; see NOTES.md).
+    by a smooth cut-off to 0 (cheaper when nodes reach beyond kappa ~ 148).
     Differentiable (forward and reverse mode) in k_s, k_p, depths and a; the result has the
     floating dtype of the inputs (float32 in, float32 out).
     """
