@@ -273,10 +273,12 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
     refit_gaussian(theta, free) -> ``core.Summary``: the Gaussian window's program from ``theta``. It
     starts from the Hertz optimum with the radius scaled to the Gaussian window of the same second
     moment. Both models have the same parameters, so the criterion is the chi-square difference in
-    units of the correlated-bin scale (the bin factor times the larger reduced chi-square, at least 1):
-    positive favours Hertz. Below ``WINDOW_DECISIVE`` the data cannot tell the windows apart; the
-    Hertz estimates (a fingertip's contact is a Hertz disk) are kept and the note gives the Gaussian
-    window's speeds and radius beside them. Returns (summary, "hertz" or "gaussian", margin, note).
+    units of the correlated-bin scale (the bin factor times the better fit's reduced chi-square, at
+    least 1, as the noise scale of an F test is the better model's): positive favours Hertz. Below
+    ``WINDOW_DECISIVE`` the data cannot tell the windows apart: the Hertz estimates (a fingertip's
+    contact is a Hertz disk) are kept, unless only the Gaussian window describes the spectra (reduced
+    chi-square below ``POOR_FIT_REDCHI``), and the note gives the other window's speeds and radius.
+    Returns (summary, "hertz" or "gaussian", margin, note).
     """
     from .core import HERTZ_PER_GAUSS
 
@@ -288,15 +290,18 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
     chi_h, chi_g = float(summary.chi2), float(gauss.chi2)
     if not np.isfinite(chi_g):
         return summary, "hertz", None, "the Gaussian window did not fit"
-    scale = max(float(bin_factor), 1.0) * max(float(summary.redchi), float(gauss.redchi), 1.0)
+    scale = max(float(bin_factor), 1.0) * max(min(float(summary.redchi), float(gauss.redchi)), 1.0)
     margin = (chi_g - chi_h) / scale
     if margin >= WINDOW_DECISIVE:
         return summary, "hertz", margin, ""
     if margin <= -WINDOW_DECISIVE:
         return gauss, "gaussian", -margin, (f"Gaussian contact window (chi-square margin {-margin:.1f} over the "
                                             "Hertz disk)")
-    vx, vy, a = np.exp(np.asarray(gauss.theta)[[_I["log_vx"], _I["log_vy"], _I_A]])
-    note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): the Hertz window's estimates "
-            f"are given; the Gaussian window gives |vx| = {100 * vx:.4g}, |vy| = {100 * vy:.4g} cm/s, "
-            f"a = {1e3 * a:.4g} mm")
-    return summary, "hertz", margin, note
+    keep_gauss = float(summary.redchi) > POOR_FIT_REDCHI >= float(gauss.redchi)
+    kept, other, name = (gauss, summary, "Hertz") if keep_gauss else (summary, gauss, "Gaussian")
+    vx, vy, a = np.exp(np.asarray(other.theta)[[_I["log_vx"], _I["log_vy"], _I_A]])
+    note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): the "
+            f"{'Gaussian' if keep_gauss else 'Hertz'} window's estimates are given"
+            f"{', as only it describes the spectra' if keep_gauss else ''}; the {name} window gives "
+            f"|vx| = {100 * vx:.4g}, |vy| = {100 * vy:.4g} cm/s, a = {1e3 * a:.4g} mm")
+    return kept, ("gaussian" if keep_gauss else "hertz"), margin, note
