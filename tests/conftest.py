@@ -2,8 +2,8 @@
 
 Every joint fit runs one compiled program (``inference.core``: its inputs have one shape whatever the
 recording), so the suite pays its compilation once. The modules run in parallel (pytest-xdist,
-``--dist loadgroup`` in pyproject.toml): every module that runs the joint pipeline goes to one worker
-(``JOINT_MODULES``), a module with costly fixtures to one worker, the other tests one by one, and the
+``--dist loadgroup`` in pyproject.toml): every module that runs the joint pipeline goes to one
+worker (``JOINT_MODULES``), a module with costly fixtures to one worker, the other tests one by one, and the
 processes share one compilation cache per run (below).
 """
 
@@ -31,6 +31,11 @@ jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 
+#: the options of the default tier's end-to-end tests: the Gaussian window's program alone (the default
+#: compiles the Hertz disk's program too, about 20 s more; the slow tier runs it: the demo, the window choice)
+GAUSS = {"window": "gaussian"}
+
+
 def pytest_configure(config):
     """Under pytest-xdist the controlling process picks the run id itself (xdist would draw one only
     when its workers start), so that it knows which cache to remove at the end."""
@@ -49,8 +54,8 @@ def pytest_sessionfinish(session):
             shutil.rmtree(cache, ignore_errors=True)
 
 
-#: modules that run the joint pipeline end to end: one worker runs them all, so that its one compiled
-#: program serves every one of them (a second worker would compile it again); the others run beside it
+#: modules that run the joint pipeline end to end: one worker runs them all, so that its compiled program
+#: serves every one of them (a second worker would compile it again); the others run beside it
 JOINT_MODULES = {"test_fit.py", "test_cli_edges.py", "test_batch.py", "test_fit_cli.py", "test_model_select.py",
                  "test_cli.py", "test_examples.py", "test_stability.py", "test_reproduce.py", "test_spectra_files.py"}
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from jax.experimental.compilation_cache import compilation_cache
 
-from conftest import compilations
+from conftest import GAUSS, compilations
 from tactile_jax.batch.run import run_batch
 from tactile_jax.inference.options import FitOptions
 from tactile_jax.io.files import write_recording
@@ -58,7 +58,7 @@ def dataset(tmp_path_factory):
 @pytest.fixture(scope="module")
 def local_run(dataset, cache_dir, tmp_path_factory):
     out = tmp_path_factory.mktemp("out") / "results.json"
-    summary = run_batch([dataset], out, chunk_size=64, progress=False)
+    summary = run_batch([dataset], out, chunk_size=64, progress=False, options=FitOptions(**GAUSS))
     return summary, read_results(out)
 
 
@@ -106,7 +106,7 @@ def test_resume_skips_done_rows_and_redoes_transient(local_run, dataset, tmp_pat
             r.update(status="worker_error", vx=None)            # a transient failure: redone
     out.write_text(json.dumps(partial))
     with compilations() as events:
-        summary = run_batch([dataset], out, chunk_size=64, progress=False)
+        summary = run_batch([dataset], out, chunk_size=64, progress=False, options=FitOptions(**GAUSS))
     assert summary.n_fitted == 2 and summary.n_skipped == 8
     assert events == []                                                  # no new compilation
     again = _by_key(read_results(out))
@@ -134,7 +134,7 @@ def test_dask_local_cluster_gives_the_same_rows(local_run, dataset, tmp_path):
     pytest.importorskip("dask.distributed")
     _, rows = local_run
     out = tmp_path / "dask.json"
-    summary = run_batch([dataset], out, chunk_size=64, progress=False, workers=2)
+    summary = run_batch([dataset], out, chunk_size=64, progress=False, workers=2, options=FitOptions(**GAUSS))
     assert summary.n_rows == len(rows)
     assert read_results(out) == rows
 
@@ -147,7 +147,7 @@ def test_cli_batch_exit_zero_with_failures(dataset, tmp_path, cache_dir, local_r
     src = tmp_path / "in"
     shutil.copytree(dataset, src)
     out = tmp_path / "r.csv"
-    result = CliRunner().invoke(main, ["batch", str(src), "--out", str(out), "--chunk-size", "8", "--quiet"])
+    result = CliRunner().invoke(main, ["batch", str(src), "--out", str(out), "--chunk-size", "8", "--quiet", "--window", "gaussian"])
     assert result.exit_code == 0, result.output
     rows = read_results(out)
     failed = sum(r["status"] not in ("ok", "not_converged", "poor_fit") for r in rows)
@@ -159,7 +159,7 @@ def test_rows_do_not_depend_on_chunk_size_and_no_resume_refits(local_run, datase
     _, rows = local_run                                     # chunk size 64
     out = tmp_path / "results.json"
     out.write_text(json.dumps(rows))
-    summary = run_batch([dataset], out, chunk_size=1, progress=False, resume=False)
+    summary = run_batch([dataset], out, chunk_size=1, progress=False, resume=False, options=FitOptions(**GAUSS))
     assert summary.n_fitted == 6 and summary.n_skipped == 0                 # every record fitted again
     again, ref = _by_key(read_results(out)), _by_key(rows)
     assert set(again) == set(ref)
@@ -174,18 +174,18 @@ def test_resume_with_other_options_refuses_naming_the_difference(local_run, data
     from tactile_jax.errors import TactileInputError
 
     _, rows = local_run
-    assert {r["options"] for r in rows} == {"defaults"}
+    assert {r["options"] for r in rows} == {"window='gaussian'"}
     from tactile_jax.io.results import write_results
 
     out = tmp_path / "results.csv"
     write_results(out, rows)
     with pytest.raises(TactileInputError, match=r"results.csv: holds rows fitted with fit_gain=False, this run has "
                                                 r"fit_gain=True: rerun with --no-resume"):
-        run_batch([dataset], out, options=FitOptions(fit_gain=True), progress=False)
+        run_batch([dataset], out, options=FitOptions(fit_gain=True, **GAUSS), progress=False)
     untagged = [{k: v for k, v in r.items() if k != "options"} for r in rows]
     write_results(out, untagged)
     with pytest.raises(TactileInputError, match="options=not recorded"):
-        run_batch([dataset], out, progress=False)
+        run_batch([dataset], out, progress=False, options=FitOptions(**GAUSS))
 
 
 def test_folder_without_recordings_is_an_error(tmp_path):

@@ -13,7 +13,9 @@ def runner():
     return CliRunner()
 
 
+@pytest.mark.slow
 def test_demo_prints_truth_and_estimates(runner, tmp_path):
+    """The README's first command end to end (both windows' programs compiled: about a minute)."""
     res = runner.invoke(main, ["demo", "--out-dir", str(tmp_path), "--duration", "4"])
     assert res.exit_code == 0, res.output
     assert "|vx|, Eq. 6 slope" in res.output and "|vx|, joint fit" in res.output and "a, joint fit" in res.output

@@ -37,7 +37,7 @@ def test_help_gives_every_command_a_whole_first_line(runner):
 
 def test_fit_without_out_prints_the_report_and_writes_nothing(runner, scene_file, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    result = runner.invoke(main, ["fit", str(scene_file)])
+    result = runner.invoke(main, ["fit", str(scene_file), "--window", "gaussian"])
     assert result.exit_code == 0, result.output
     assert "[[Fit Statistics]]" in result.output and "wrote" not in result.output
     assert list(tmp_path.iterdir()) == []

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conftest import compilations
+from conftest import GAUSS, compilations
 from tactile_jax.errors import TactileInputError
 from tactile_jax.inference.options import FitOptions
 from tactile_jax.inference.fit import fit_recording, fit_spectra
@@ -31,7 +31,7 @@ def _scene(vx, vy, a, seed, snr=50.0, duration=16.0):
 def oblique():
     scene = _scene(0.036, 0.022, 1.5e-3, seed=11)
     rec = simulate(scene)
-    return scene, rec, fit_recording(rec)
+    return scene, rec, fit_recording(rec, FitOptions(**GAUSS))
 
 
 def test_oblique_slip_small_contact_recovered(oblique):
@@ -75,15 +75,15 @@ def test_new_recording_shapes_do_not_compile_again(oblique):
     """Another length, another Welch segment, another band: the same compiled program."""
     short = simulate(_scene(0.03, 0.01, 1.5e-3, seed=5, duration=8.0, snr=45.0))
     with compilations() as events:
-        res = fit_recording(short, FitOptions(nperseg=512))
-        res2 = fit_recording(short)
+        res = fit_recording(short, FitOptions(nperseg=512, **GAUSS))
+        res2 = fit_recording(short, FitOptions(**GAUSS))
     assert res.status in ("ok", "poor_fit") and res2.status in ("ok", "poor_fit")
     assert events == []
 
 
 def test_minor_component_gets_a_profile_interval():
     scene = _scene(0.02, 0.0012, 1.5e-3, seed=4)
-    res = fit_recording(simulate(scene))
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))
     assert res.status == "ok", res.message
     assert res.vy_lo is not None and res.vy_hi is not None and res.vy_lo < res.vy < res.vy_hi
     assert res.vy_lo2 <= res.vy_lo and (res.vy_hi2 is None or res.vy_hi2 >= res.vy_hi)
@@ -93,7 +93,7 @@ def test_minor_component_gets_a_profile_interval():
 
 def test_known_velocity_is_held_fixed():
     scene = _scene(0.03, 0.0, 2e-3, seed=2, duration=8.0)
-    res = fit_recording(simulate(scene), FitOptions(velocity=(0.03, 0.0)))
+    res = fit_recording(simulate(scene), FitOptions(velocity=(0.03, 0.0), **GAUSS))
     assert res.vx == 0.03 and res.vx_err is None and res.vy == 0.0 and res.vy_err is None
     assert res.status == "ok" and abs(res.a - scene.a) < 4 * res.a_err
     assert res.model == "window+v_known"
@@ -102,7 +102,7 @@ def test_known_velocity_is_held_fixed():
 def test_no_band_is_reported_not_raised():
     rng = np.random.default_rng(0)
     rec = Recording(rng.standard_normal((4, 16000)), 1000.0, (0.265e-3, 0.925e-3), source="noise.h5")
-    res = fit_recording(rec)
+    res = fit_recording(rec, FitOptions(**GAUSS))
     assert res.status == "no_band" and "usable bins" in res.message and res.vx is None
     assert "no coherent texture line or band" in res.message
 
@@ -112,7 +112,7 @@ def test_a_grating_gives_its_normal_speed_and_leaves_the_ridge_component_undeter
     the lines' normal, the normal's angle and a, and vx, vy undetermined (the aperture problem)."""
     scene = Scene(texture=Grating(pitch=2e-3, angle=0.5), velocity=(0.03, 0.02), contact_radius=1.5e-3,
                   duration=4.0, snr_db=50.0, seed=1)
-    res = fit_recording(simulate(scene))
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))
     v_n = 0.03 * np.cos(0.5) + 0.02 * np.sin(0.5)
     assert res.status == "undetermined" and res.texture == "grating" and res.model == "lines"
     assert res.vx is None and res.vy is None and "aperture" in res.message
@@ -136,7 +136,7 @@ def test_bad_input_raises_one_line_naming_the_source():
 def test_float32_input_gives_the_same_fit(oblique):
     scene, rec, res = oblique
     rec32 = Recording(np.asarray(rec.signals, np.float32), rec.fs, rec.depths)
-    res32 = fit_recording(rec32)
+    res32 = fit_recording(rec32, FitOptions(**GAUSS))
     assert res32.status == "ok"
     assert abs(res32.vx - res.vx) < 0.1 * res.vx_err and abs(res32.a - res.a) < 0.1 * res.a_err
 
@@ -151,7 +151,7 @@ def test_spectra_files_fit_like_their_recording(oblique, tmp_path):
     write_recording(tmp_path / "r.h5", rec)
     out = CliRunner().invoke(main, ["spectra", str(tmp_path / "r.h5"), "--out", str(tmp_path / "s.npz")])
     assert out.exit_code == 0, out.output
-    got = fit_spectra(read_spectra(tmp_path / "s.npz"))
+    got = fit_spectra(read_spectra(tmp_path / "s.npz"), FitOptions(**GAUSS))
     assert got.status == res.status and got.error_method == res.error_method
     for name in ("vx", "vx_err", "vy", "vy_err", "a", "a_err"):
         assert getattr(got, name) == pytest.approx(getattr(res, name), rel=1e-9), name
@@ -159,7 +159,7 @@ def test_spectra_files_fit_like_their_recording(oblique, tmp_path):
 
 def test_large_contact_radius_is_measured_or_bounded():
     scene = dataclasses.replace(_scene(0.03, 0.01, 6e-3, seed=6, duration=8.0), grid_spacing=60e-6)
-    res = fit_recording(simulate(scene))
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))
     assert res.status == "ok", res.message
     speed = float(np.hypot(*scene.velocity))
     assert abs(res.vx - scene.velocity[0]) < 0.05 * speed
@@ -171,7 +171,7 @@ def test_large_contact_radius_is_measured_or_bounded():
 
 def test_the_slip_model_holds_a_window_negligible(oblique):
     _, rec, _ = oblique
-    res = fit_recording(rec, FitOptions(model="slip"))
+    res = fit_recording(rec, FitOptions(model="slip", **GAUSS))
     assert res.model == "slip" and res.a is None and res.a_lower == pytest.approx(0.1)
     assert "held negligible" in res.message
 
@@ -182,8 +182,8 @@ def test_directional_texture_is_modelled_and_reported():
     scene = Scene(texture=DirectionalTexture(anisotropy=3.0, angle=np.radians(120.0)), velocity=(0.0371, 0.0217),
                   contact_radius=1.2e-3, snr_db=45.0, seed=305, duration=16.0)
     rec = simulate(scene)
-    iso = fit_recording(rec, FitOptions(texture="isotropic"))
-    res = fit_recording(rec)
+    iso = fit_recording(rec, FitOptions(texture="isotropic", **GAUSS))
+    res = fit_recording(rec, FitOptions(**GAUSS))
     assert res.status == "ok" and res.texture == "directional" and res.texture_margin > 0, res.message
     assert "directional texture" in res.message and iso.texture == "isotropic"
     assert abs(iso.vx - scene.velocity[0]) > 4 * iso.vx_err              # what the isotropic model reports

@@ -110,7 +110,8 @@ def test_good_and_garbage_files_go_on(scene_file, tmp_path):
     garbage = tmp_path / "garbage.h5"
     garbage.write_bytes(b"not hdf5 at all")
     out = tmp_path / "r.csv"
-    res = CliRunner().invoke(main, ["fit", str(scene_file), str(garbage), "--out", str(out), "--quiet", *NO_CHAIN])
+    res = CliRunner().invoke(main, ["fit", str(scene_file), str(garbage), "--out", str(out), "--quiet", "--window", "gaussian",
+                                    *NO_CHAIN])
     assert res.exit_code == 0, res.output
     assert res.stdout == ""                                                     # --quiet: no reports
     assert "1 fitted, 1 failed" in res.stderr

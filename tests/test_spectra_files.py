@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import GAUSS
 from tactile_jax.cli import main
 from tactile_jax.errors import TactileInputError
 from tactile_jax.inference.fit import NO_XY_MESSAGE, fit_recording, fit_spectra
@@ -71,8 +72,8 @@ def test_groups_beyond_the_grid_merge_consecutively():
 
 
 def test_spectra_file_fits_like_its_recording(scene_file, spectra_file):
-    direct = fit_recording(read_recording(scene_file))
-    got = fit_spectra(read_spectra(spectra_file))
+    direct = fit_recording(read_recording(scene_file), FitOptions(**GAUSS))
+    got = fit_spectra(read_spectra(spectra_file), FitOptions(**GAUSS))
     assert direct.status == got.status == "ok", (direct.message, got.message)
     for name in COMPARED:
         assert getattr(got, name) == pytest.approx(getattr(direct, name), rel=1e-9, abs=0), name
@@ -85,11 +86,11 @@ def test_spectra_file_without_cross_pair_spectra_fits_and_says_so(scene_file, sp
     """x-y cross-spectra absent (an older file): no x-y chain, said in the message; without groups the
     errors are the bin-correlation fallback."""
     full = read_spectra(spectra_file)
-    direct = fit_spectra(full)
+    direct = fit_spectra(full, FitOptions(**GAUSS))
     for drop, method in ((("xy", "group_xy"), "laplace x jackknife"),
                          (("xy", "group_count", "group_psd", "group_csd", "group_xy"), "laplace x max(redchi, 1)")):
         path = write_spectra(tmp_path / "old.npz", full._replace(**dict.fromkeys(drop)))
-        res = fit_spectra(read_spectra(path))
+        res = fit_spectra(read_spectra(path), FitOptions(**GAUSS))
         assert res.status == "ok" and res.cross_pairs == 0 and res.error_method.startswith(method), res.message
         assert NO_XY_MESSAGE in res.message and "x-y chain is off" in res.message
         for name in ("vx", "vy", "a"):

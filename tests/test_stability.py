@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import GAUSS
 from tactile_jax.inference.options import FitOptions
 from tactile_jax.inference.fit import fit_recording, fit_spectra
 from tactile_jax.io.files import SpectraData
@@ -163,7 +164,7 @@ def _hard(name):
 @pytest.mark.parametrize("name", [_hard(n) for n in SCENES if n != "contact_50mm"])
 def test_hard_scenes(name):
     scene = SCENES[name]
-    res = fit_recording(simulate(scene), FitOptions())
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))         # the scenes' own window
     assert_honest(res, _truth(scene))
     if name == "deep_drowned":
         assert res.status == "no_band", (res.status, res.message)
@@ -299,7 +300,7 @@ def test_extreme_alpha_d_values_and_gradients():
 
 def test_recording_of_zeros_is_a_status_not_nan():
     rec = Recording(np.zeros((4, int(DURATION * 1000))), 1000.0, (0.265e-3, 0.925e-3))
-    res = fit_recording(rec, FitOptions())
+    res = fit_recording(rec, FitOptions(**GAUSS))
     assert res.status == "no_band" and res.message
     for name, v in _floats(res):
         assert math.isfinite(v), (name, v)
