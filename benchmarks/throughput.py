@@ -201,6 +201,7 @@ def one(name: str, size: int, args) -> dict:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import scipy_reference as ref_mod
     from tactile_jax.batch import run as batch_mod
+    from tactile_jax.inference.options import FitOptions
     from tactile_jax.model.sensor import PAPER_SENSOR
     from tactile_jax.spectral.estimate import default_nperseg
 
@@ -223,7 +224,8 @@ def one(name: str, size: int, args) -> dict:
             phase[0] = label
             t0 = time.perf_counter()
             summary = batch_mod.run_batch([str(p) for p in files], work / f"rows_{k}.json", chunk_size=args.chunk,
-                                          progress=False, resume=False)
+                                          progress=False, resume=False,
+                                          options=FitOptions(window=args.window))
             wall = time.perf_counter() - t0
             rows = json.loads((work / f"rows_{k}.json").read_text())
             passes.append({"pass": label, "wall_s": wall, "rate": size / wall, "timings": summary.timings,
@@ -307,7 +309,7 @@ def table(results, m, args) -> str:
     lines = [f"machine: {m['processor']}, {m['cpu_count']} CPUs, {m['platform']}, Python {m['python']}, jax {m['jax']} "
              f"(jaxlib {m['jaxlib']}, {m['backend']}), numpy {m['numpy']}, scipy {m['scipy']}; load average at start "
              f"{[round(v, 2) for v in m['load_avg_1_5_15']]}",
-             f"run_batch, chunk_size {args.chunk}, pool {args.pool} scenes per set, float64 compute; "
+             f"run_batch, chunk_size {args.chunk}, window {args.window or 'default (Hertz and Gaussian)'}, pool {args.pool} scenes per set, float64 compute; "
              "errors and coverage over the rows with status ok", ""]
     for name in dict.fromkeys(r["set"] for r in results):
         lines.append(f"- {name}: {SETS[name]['label']}")
@@ -374,6 +376,8 @@ def main():
     ap.add_argument("--set", dest="sets", default="both", choices=["x", "oblique", "both"])
     ap.add_argument("--pool", type=int, default=16, help="simulated scenes per set")
     ap.add_argument("--chunk", type=int, default=32, help="run_batch's chunk_size")
+    ap.add_argument("--window", choices=("gaussian", "hertz"), default=None,
+                    help="fit one contact window (default: both, the one the data prefer kept, as batch does)")
     ap.add_argument("--scipy-max", type=int, default=1000, help="scipy loop on at most this many records")
     ap.add_argument("--out", default="benchmarks/out")
     ap.add_argument("--one", nargs=2, metavar=("SET", "SIZE"), default=None, help=argparse.SUPPRESS)
@@ -389,7 +393,7 @@ def main():
     results = []
     for name in sets:
         for size in sizes:
-            cmd = [sys.executable, __file__, "--one", name, str(size), f"--pool={args.pool}", f"--chunk={args.chunk}",
+            cmd = [sys.executable, __file__, "--one", name, str(size), f"--pool={args.pool}", f"--chunk={args.chunk}", *([f"--window={args.window}"] if args.window else []),
                    f"--scipy-max={args.scipy_max}", f"--out={args.out}"]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
             sys.stderr.write("".join(line + "\n" for line in proc.stderr.splitlines()

@@ -162,6 +162,10 @@ def summarize(rows: list[dict], name: str) -> dict:
     for q in ("vx", "vy", "a"):
         pool = [(r, f) for r, f in ok if f.get(q) is not None and f.get(q + "_err")]
         out[q + "_cover1"] = share(lambda r, f: _dev(r, f, q) <= f[q + "_err"], pool)
+    # status ok with vx, vy or a more than 3 of its sigmas from the truth, as a share of all scenes
+    out["confident_wrong"] = share(lambda r, f: f["status"] == "ok" and any(
+        f.get(q) is not None and f.get(q + "_err") and _dev(r, f, q) > 3 * f[q + "_err"] for q in ("vx", "vy", "a")),
+        fits)
     out["seconds_median"] = float(np.median([f["seconds"] for _, f in fits[1:]] or [fits[0][1]["seconds"]]))
     if name == "default":
         right = [(r, f) for r, f in fits if f.get("window") is not None]
@@ -178,7 +182,7 @@ def _pct(x):
 
 def table(summary: dict) -> str:
     lines = ["| physics | fit | statuses | both speeds within 2 % | a within 5 % | 1-sigma cover vx / vy / a | "
-             "default picks the physics (decisive) | s / fit |", "|---|---|---|---|---|---|---|---|"]
+             "confident wrong | default picks the physics (decisive) | s / fit |", "|---|---|---|---|---|---|---|---|---|"]
     for physics, by_fit in summary.items():
         for name, s in by_fit.items():
             st = ", ".join(f"{k} {v}" for k, v in sorted(s["status"].items()))
@@ -186,7 +190,7 @@ def table(summary: dict) -> str:
             pick = (f"{_pct(s['chose_physics'])} ({_pct(s['chose_physics_decisive'])} of {s['n_decisive']})"
                     if name == "default" else "")
             lines.append(f"| {physics} | {name} | {st} | {_pct(s['both_speeds_2pct'])} | {_pct(s['a_5pct'])} | "
-                         f"{cover} | {pick} | {s['seconds_median']:.2f} |")
+                         f"{cover} | {_pct(s.get('confident_wrong'))} | {pick} | {s['seconds_median']:.2f} |")
     return "\n".join(lines)
 
 
@@ -224,7 +228,18 @@ def main(argv=None):
     ap.add_argument("--physics", default=",".join(PHYSICS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
     ap.add_argument("--cache", type=Path, default=None, help="folder to keep the simulated recordings in (reused)")
+    ap.add_argument("--summarize", type=Path, default=None, metavar="JSON",
+                    help="print the table of an earlier run's windows.json instead of fitting")
     args = ap.parse_args(argv)
+    if args.summarize is not None:
+        saved = json.loads(args.summarize.read_text())
+        summary = {p: {name: summarize(r, name) for name in (*FITS, "scipy")} for p, r in saved["rows"].items()}
+        print(f"machine: {saved['machine']}\n\n{table(summary)}")
+        cost = saved.get("core_cost")
+        if cost:
+            print(f"\none joint solve, warm (median): Gaussian {cost['gaussian']:.3f} s, Hertz {cost['hertz']:.3f} s, "
+                  f"ratio {cost['ratio']:.2f}")
+        return
     global _CACHE
     _CACHE = args.cache
     if _CACHE is not None:

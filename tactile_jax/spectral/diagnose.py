@@ -1,12 +1,12 @@
 """Why a record has no usable band: what its spectra hold instead (from its ``Segments``, after the fit).
 
-The joint model needs a broadband texture: runs of coherent bins where the
+The smooth joint models need a broadband texture: runs of coherent bins where the
 deep probe stands above its noise. When the band selection finds too few, the
 spectra usually hold one of two things, and the user should be told which:
 
 - **lines**: a periodic texture (grating, wire net, knurl) puts its power in
-  a few coherent bins, with incoherent leakage between them; the model does
-  not describe such spectra yet;
+  a few coherent bins, with incoherent leakage between them: the line model
+  (``inference.line_texture``) takes such a record;
 - **nothing coherent in the deep probes**: the texture's wavenumbers are so
   high that exp(-|k| d2) has taken its signal below the deep probe's noise
   (or the signal is too weak, or the deep gains are wrong).
@@ -55,7 +55,7 @@ def no_band_reason(seg: Segments) -> str:
             found.append(f"the deep {name} probe holds {len(runs)} coherent line{'s' * (len(runs) > 1)} (strongest "
                          f"at {hz[i]:.1f} Hz, {level[i]:.0f} dB above its median, coherence {coh[i]:.2f})")
     if found:
-        return ("; ".join(found) + ": a periodic texture (grating, wire net), whose line spectrum the joint model "
-                "does not describe yet")
+        return ("; ".join(found) + ": a periodic texture (grating, wire net), whose line spectrum the smooth models "
+                "do not describe")
     return ("the deep probes hold no coherent texture line or band above their noise: the texture may be too fine "
             "for the probes' depths (its signal falls as exp(-|k| d) with depth), or the signal too weak")
