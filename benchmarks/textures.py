@@ -224,7 +224,7 @@ def figure(summary: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tactile_jax.viz.figures import provenance
+    from tactile_jax.viz.figures import save_figure
 
     kinds = list(summary)
     x = np.arange(len(kinds))
@@ -238,10 +238,8 @@ def figure(summary: dict, path: Path) -> None:
     ax.set_ylabel("share of scenes")
     ax.legend(fontsize=7)
     ax.set_title("default fit per texture kind (16 s, oblique slips, a 0.8-3 mm, 40-50 dB)", fontsize=9)
-    fig.text(0.01, 0.01, provenance(), fontsize=6, color="0.4")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None):

@@ -200,7 +200,7 @@ def figure(rows: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from tactile_jax.viz.figures import provenance
+    from tactile_jax.viz.figures import save_figure
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for ax, physics in zip(axes, rows):
@@ -216,10 +216,8 @@ def figure(rows: dict, path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("a error (%)")
     axes[0].legend(fontsize=8)
-    fig.text(0.01, 0.01, provenance(), fontsize=6, color="0.4")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv=None):
