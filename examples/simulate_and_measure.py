@@ -10,6 +10,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import tactile_jax as tj  # noqa: E402
+from tactile_jax.inference.pair_fit import pair_leakage  # noqa: E402
 
 
 def main(duration: float = 16.0, out: str = "scene.h5") -> tj.PairFit:
@@ -25,7 +26,7 @@ def main(duration: float = 16.0, out: str = "scene.h5") -> tj.PairFit:
     # the kernel, weighted by the shallow spectrum the estimator saw, plus its realised centroid (leakage)
     fit = tj.fit_pair(ratio.omega, ratio.log_ratio[0], ratio.log_ratio_err[0], band[0], d1, d2,
                       bin_factor=spec.bin_factor, kernel=spec.kernel, spectrum=tj.whitened_psd(spec)[0],
-                      leakage=tj.pair_leakage(spec, 0))
+                      leakage=pair_leakage(spec, 0))
     print(f"|vx| = {100 * fit.speed:.3f} +/- {100 * fit.speed_err:.3f} cm/s (truth {100 * rec.truth['vx']:.3f})")
     print(f"a    = {1e3 * fit.a:.3f} +/- {1e3 * fit.a_err:.3f} mm (truth {1e3 * rec.truth['a']:.3f})")
     return fit

@@ -33,7 +33,7 @@ def test_fit_spectra_with_errors(tmp_path):
     assert joint.vx == pytest.approx(abs(truth["vx"]), rel=0.1)
     assert joint.vx_err is not None and 0 < joint.vx_err < 0.1 * joint.vx
     # spectra without their segments: no jackknife, the Laplace errors times the bin correlation
-    assert joint.jackknife is None and joint.error_method == "laplace x max(redchi, 1) x bin_factor"
+    assert joint.error_method.startswith("laplace x max(redchi, 1)")
     assert joint.a is not None and joint.a == pytest.approx(truth["a"], rel=0.3)
     assert pairs.vx == pytest.approx(abs(truth["vx"]), rel=0.15)
 

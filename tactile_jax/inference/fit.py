@@ -338,6 +338,13 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
             s, lambda th, fr: settle(rec, gauss, run.refit(rec, gauss, th, fr))[0], bin_factor=bin_factor)
         if choice == "gaussian":
             settings, window = gauss, "gaussian"
+            warnings = []                       # the Hertz fit's settling is not this result's
+            if int(s.status) == FIT_CODES.index(Status.NOT_CONVERGED):
+                # the refit from the Hertz optimum did not settle: the Gaussian window's own starts
+                fresh = settle(rec, gauss, run.fit_one(rec, gauss))[0]
+                if (int(fresh.status) != FIT_CODES.index(Status.NOT_CONVERGED)
+                        or float(fresh.chi2) < float(s.chi2)):
+                    s = fresh
         notes.append(note)
     texture, texture_margin = model_select.texture_name(s.free), None
     if options.texture is None:
