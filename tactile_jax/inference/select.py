@@ -261,7 +261,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
         p, q = (float(directional.theta[i]) for i in _I_ANISO)
         contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
         angle = 0.5 * np.degrees(np.arctan2(q, p)) % 180.0
-        note = (f"directional texture (BIC margin {bic_iso - bic_dir:.1f} over isotropic): power along "
+        note = (f"directional texture (AIC margin {bic_iso - bic_dir:.1f} over isotropic): power along "
                 f"{angle:.0f} deg, anisotropy {(1 + contrast) / (1 - contrast):.2f}")
         return directional, "directional", bic_iso - bic_dir, note
     return summary, "isotropic", bic_dir - bic_iso, ""
