@@ -92,6 +92,11 @@ class Settings(NamedTuple):
     directional: bool = False
     hertz: jax.Array | None = None
 
+    @property
+    def window(self) -> str:
+        """The contact window these settings fit: "gaussian" or "hertz" (one compiled program each)."""
+        return "gaussian" if self.hertz is None else "hertz"
+
 
 class Record(NamedTuple):
     """One record's inputs: ``seg`` (``Segments``), depths (2,) m, gains (2,) deep/shallow gain ratios

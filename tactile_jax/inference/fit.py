@@ -30,6 +30,9 @@ from ..uncertainty.profile import add_profiles
 from . import run
 from . import select as model_select
 from .core import Record, Settings, Summary
+
+#: ``Summary.status`` of a fit that has not settled
+_UNSETTLED = FIT_CODES.index(Status.NOT_CONVERGED)
 from .forward import PARAMS
 from .options import FitOptions, known_gains, options_from_file, settings_of
 from .pair_fit import fit_pair
@@ -327,9 +330,9 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
     s, more = settle(rec, settings, s)
     if more:
         warnings.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
-                        if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED) else
+                        if int(s.status) != _UNSETTLED else
                         f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
-    window = "gaussian" if settings.hertz is None else "hertz"
+    window = settings.window
     window_margin = None
     bin_factor = float(rec.seg.bin_factor)
     if options.window is None and settings.hertz is not None:
@@ -339,11 +342,10 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
         if choice == "gaussian":
             settings, window = gauss, "gaussian"
             warnings = []                       # the Hertz fit's settling is not this result's
-            if int(s.status) == FIT_CODES.index(Status.NOT_CONVERGED):
+            if int(s.status) == _UNSETTLED:
                 # the refit from the Hertz optimum did not settle: the Gaussian window's own starts
                 fresh = settle(rec, gauss, run.fit_one(rec, gauss))[0]
-                if (int(fresh.status) != FIT_CODES.index(Status.NOT_CONVERGED)
-                        or float(fresh.chi2) < float(s.chi2)):
+                if int(fresh.status) != _UNSETTLED or float(fresh.chi2) < float(s.chi2):
                     s = fresh
         notes.append(note)
     texture, texture_margin = model_select.texture_name(s.free), None
@@ -391,7 +393,7 @@ def _layered(rec: Record, settings: Settings, s: Summary, options: FitOptions, c
 def settle(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, int]:
     """More solves of the pipeline's program from where a fit stopped unsettled (``fit`` and ``batch``):
     the last summary and how many solves ran (0 where it had settled)."""
-    if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED):
+    if int(s.status) != _UNSETTLED:
         return s, 0
     return _continue(_Refitter(rec, settings), s)
 
@@ -400,7 +402,7 @@ def _continue(refit: _Refitter, s: Summary):
     """More solves from where a fit stopped unsettled; the last summary and how many solves ran."""
     for k in range(1, _MORE_SOLVES + 1):
         s = refit(s.theta, s.free)
-        if int(s.status) != FIT_CODES.index(Status.NOT_CONVERGED):
+        if int(s.status) != _UNSETTLED:
             return s, k
     return s, _MORE_SOLVES
 

@@ -91,7 +91,7 @@ def _single_core():
         states = {}
 
         def call(rec, settings, start):
-            window = "gaussian" if settings.hertz is None else "hertz"     # one program per window
+            window = settings.window                    # one program per window
             state = states.setdefault(window, {})
             if "exp" not in state:
                 path = Path(cache).parent / "export" / f"core-{window}-{_source_key()}.bin"

@@ -35,7 +35,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..errors import TactileInputError
-from .core import POOR_FIT_REDCHI
+from ..status import FIT_CODES, Status
+from .core import HERTZ_PER_GAUSS, POOR_FIT_REDCHI
 from .forward import PARAMS
 
 __all__ = [
@@ -221,6 +222,15 @@ def annotate(res) -> None:
         res.message = "; ".join([m for m in [said] if m] + extra)
 
 
+#: ``Summary.status`` codes of fits that ran and gave values: the ones a choice of model compares
+_RAN = tuple(FIT_CODES.index(s) for s in (Status.OK, Status.NOT_CONVERGED, Status.POOR_FIT))
+
+
+def _compared(summary) -> bool:
+    """Whether a fit gave values to compare (not no band, not failed)."""
+    return int(summary.status) in _RAN
+
+
 def texture_name(free) -> str:
     """The texture model a free mask fits: "directional" where the angular factor is free."""
     return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
@@ -238,7 +248,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
     fitted to its lumps would turn a poor fit into a confident one.
     Returns (summary, name, margin in AIC units (the loser's minus the winner's), note).
     """
-    if int(summary.status) not in (0, 2, 3):                   # no band or failed: nothing to compare
+    if not _compared(summary):
         return summary, "isotropic", None, ""
     free = np.asarray(summary.free, bool)
     fr = free.copy()
@@ -248,23 +258,23 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
     if not np.isfinite(float(directional.chi2)):
         return summary, "isotropic", None, "the directional texture model did not fit"
     scale = float(directional.chi2) / max(n_data - fr.sum(), 1.0)
-    bic_iso = information_criterion(float(summary.chi2), free.sum(), n_data, bin_factor=bin_factor, scale=scale,
+    ic_iso = information_criterion(float(summary.chi2), free.sum(), n_data, bin_factor=bin_factor, scale=scale,
                                     kind="aic")
-    bic_dir = information_criterion(float(directional.chi2), fr.sum(), n_data, bin_factor=bin_factor, scale=scale,
+    ic_dir = information_criterion(float(directional.chi2), fr.sum(), n_data, bin_factor=bin_factor, scale=scale,
                                     kind="aic")
     if float(directional.redchi) > DIRECTIONAL_EXPLAINS:
         poor = float(summary.redchi) > POOR_FIT_REDCHI and float(directional.redchi) < float(summary.redchi)
         note = (f"a directional lobe lowers the reduced chi-square only to {float(directional.redchi):.2f}: it "
                 "does not describe these spectra" if poor else "")
         return summary, "isotropic", None, note
-    if bic_dir < bic_iso:
+    if ic_dir < ic_iso:
         p, q = (float(directional.theta[i]) for i in _I_ANISO)
         contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
         angle = 0.5 * np.degrees(np.arctan2(q, p)) % 180.0
-        note = (f"directional texture (AIC margin {bic_iso - bic_dir:.1f} over isotropic): power along "
+        note = (f"directional texture (AIC margin {ic_iso - ic_dir:.1f} over isotropic): power along "
                 f"{angle:.0f} deg, anisotropy {(1 + contrast) / (1 - contrast):.2f}")
-        return directional, "directional", bic_iso - bic_dir, note
-    return summary, "isotropic", bic_dir - bic_iso, ""
+        return directional, "directional", ic_iso - ic_dir, note
+    return summary, "isotropic", ic_dir - ic_iso, ""
 
 
 def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
@@ -280,9 +290,7 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
     chi-square below ``POOR_FIT_REDCHI``), and the note gives the other window's speeds and radius.
     Returns (summary, "hertz" or "gaussian", margin, note).
     """
-    from .core import HERTZ_PER_GAUSS
-
-    if int(summary.status) not in (0, 2, 3):                   # no band or failed: nothing to compare
+    if not _compared(summary):
         return summary, "hertz", None, ""
     theta = np.asarray(summary.theta).copy()
     theta[_I_A] -= np.log(HERTZ_PER_GAUSS)
