@@ -40,7 +40,7 @@ from ..spectral.prewhiten import filter_response
 from ..model.r_curve import log_g
 from ..spectral import band as band_mod
 from ..spectral.band import MIN_BINS as MIN_BINS
-from .data import N_FIT, JointData, grid_offsets, measure
+from .data import N_FIT, JointData, grid_offsets, half_offsets, measure
 from .forward import INDEX, N_PHYS, ModelSpectra, spectra_at_bins
 from .residuals import blocks, n_prior, residuals_and_model
 from .solve import levenberg_marquardt
@@ -231,7 +231,7 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     k_xy = jnp.maximum(dof - n_reg, 1.0)
     k1 = jnp.maximum(dof - 1.0, 1.0)
     # the prewhitening filters on the half-bin grid of the kernel and at the bins
-    offsets = np.arange(-12, 2 * (N_FIT - 1) + 13) / 2.0
+    offsets = half_offsets()
     half = d_omega * (i0 + offsets)
     resp_h = filter_response(seg.whitening, half, seg.fs)
     resp_b = filter_response(seg.whitening, om, seg.fs)
@@ -290,7 +290,8 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     # a fixed parameter's prior residual is constant; the angular factor's prior stays on for a refit that frees it
     prior_inv_sd = jnp.where(free | aniso, prior_inv_sd, 0.0)
     data = JointData(
-        meas=meas, omega=om, grid_abs=jnp.abs(d_omega * (i0 + jnp.asarray(grid_offsets()))),
+        meas=meas, omega=om, grid_abs=jnp.abs(d_omega * (i0 + jnp.asarray(
+            grid_offsets() if settings.hertz is None else offsets))),
         log_kernel=data_kernel,
         white_half=jnp.log(jnp.abs(resp_h) ** 2), white_bin=jnp.log(jnp.abs(resp_b) ** 2),
         xy_white_half=jnp.conj(resp_h[0]) * resp_h[1], xy_white_bin=jnp.conj(resp_b[0]) * resp_b[1],

@@ -28,7 +28,7 @@ import numpy as np
 from .._numerics import tiny
 from ..model import cross_pair
 
-__all__ = ["N_FIT", "N_MARGIN", "Measured", "JointData", "measure", "grid_offsets"]
+__all__ = ["N_FIT", "N_MARGIN", "Measured", "JointData", "measure", "grid_offsets", "half_offsets"]
 
 #: bins in the fit's window
 N_FIT = 48
@@ -40,6 +40,13 @@ N_MARGIN = 7
 def grid_offsets(n_fit: int = N_FIT) -> np.ndarray:
     """Integer offsets (bins, from the window's first bin) of the model's density grid: (n_fit + 2 N_MARGIN,)."""
     return np.arange(-N_MARGIN, n_fit + N_MARGIN)
+
+
+def half_offsets(n_fit: int = N_FIT) -> np.ndarray:
+    """Half-bin offsets (bins, from the window's first bin) of the spectral window's reach around the fit's
+    bins, (2 (n_fit - 1) + 4 (N_MARGIN - 1) + 1,): where the kernel averages the densities."""
+    reach = N_MARGIN - 1
+    return np.arange(-2 * reach, 2 * (n_fit - 1 + reach) + 1) / 2.0
 
 
 class Measured(NamedTuple):
@@ -62,8 +69,9 @@ class Measured(NamedTuple):
 class JointData(NamedTuple):
     """Everything the joint model's residuals need besides the parameters (arrays; see the module).
 
-    meas: ``Measured``. omega: (L,) bin frequencies, rad/s. grid_abs: (F,) |omega| of the model's
-    integer grid (``grid_offsets``). log_kernel: (J,) log spectral-window weights at
+    meas: ``Measured``. omega: (L,) bin frequencies, rad/s. grid_abs: |omega| where the model's densities
+    are computed: the integer grid (``grid_offsets``, F) under the Gaussian window, whose smooth densities
+    are interpolated to half bins, or the half-bin grid itself (``half_offsets``, H) under the Hertz window. log_kernel: (J,) log spectral-window weights at
     ``segments.KERNEL_OFFSETS`` (-2e4: none). white_half, white_bin: (2, H), (2, L) log |A|^2 of each
     pair's prewhitening filter on the half-bin grid and at the bins; xy_white_half, xy_white_bin:
     (H,), (L,) complex conj(A_x) A_y. depths: (2,) m. log_k_knots: (n,) log rad/m.

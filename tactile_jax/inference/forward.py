@@ -8,9 +8,10 @@ angular factor (p, q) (``model.lines.log_angular``; 0, 0: isotropic) and log
 Phi at the texture's knots (``model.spline``).
 
 The densities of the ten entries of the spectral matrix (``lines``) are
-computed on the integer-bin grid around the window, interpolated to half
-bins (cubic in log density: the resolution rule keeps the log ratio's fall
-below 0.15 per bin), and averaged by the estimator's spectral window with the
+computed on the half-bin grid of the spectral window's reach under the Hertz
+window, and under the Gaussian window (smooth densities, half the cost) on
+the integer-bin grid, interpolated to half bins (cubic in log density: the
+resolution rule keeps the log ratio's fall below 0.15 per bin); then averaged by the estimator's spectral window with the
 prewhitening filter's weight |A|^2 (for x-y entries the complex conj(A_x) A_y):
 each bin's expectation is what Welch or multitaper averaging of these
 densities gives, so the resolution bias of steep spectra is modelled, not an
@@ -114,7 +115,11 @@ def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
     level, gx, gy = theta[i["log_ay"]], theta[i["log_gx"]], theta[i["log_gy"]]
     amp = jnp.stack([0.0, gx, 0.5 * level, 0.5 * level + gy])
     dens = dens + jnp.stack([amp[i] + amp[j] for i, j in ENTRIES])[:, None]
-    half, half_sign = _half_bins(dens, sign)                                         # (10, H)
+    # the Hertz window's densities are computed on the half bins themselves: its spectrum's nulls (the disk's
+    # edge) make the y pair's densities dip between integer bins at slips along x, which no interpolation of
+    # them follows (interpolated, the fit reads vy 0.05-0.12 cm/s for a truth of 0, beyond its error, at
+    # reduced chi-squares of 1.2-2.0; on the half bins 0.9-1.2 and vy within its error: benchmarks/windows.py)
+    half, half_sign = (dens, sign) if hertz is not None else _half_bins(dens, sign)   # (10, H)
     n_fit = data.omega.shape[0]
     idx = half_bin_index(n_fit, data.log_kernel.shape[0])
     white = jnp.exp(jnp.repeat(data.white_half, 3, axis=0))                          # |A|^2 per pair entry
