@@ -269,7 +269,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     from ..inference.options import options_from_file, settings_of
-    from ..inference.fit import record_of, refine, with_line_model
+    from ..inference.fit import averaged, record_of, refine, with_line_model
     from ..inference.result import result_from_summary
     from ..inference import run
     from ..inference.select import model_name
@@ -320,6 +320,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 res.window, res.window_margin = f.window, f.window_margin
                 res.texture, res.texture_margin = f.texture, f.texture_margin
                 res.message = "; ".join(m for m in (res.message, *f.notes) if m)
+                res = averaged(res, f, velocity=vel, curvature_radius=radius)
                 res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,
                                       source=src)
                 res.precision = "float64" if jax.config.jax_enable_x64 else "float32"

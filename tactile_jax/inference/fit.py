@@ -308,7 +308,8 @@ class _Refitter(NamedTuple):
 class Refined(NamedTuple):
     """``refine``'s outcome: the summary and the settings of the models chosen (their window, hence
     program), the window and texture models with their margins and what to say of them (``notes``, for
-    the message), and warnings (more solves)."""
+    the message), warnings (more solves), and where the data cannot tell the windows apart the other
+    window's summary and the kept window's weight (``select.average_windows``; else None and 1)."""
 
     summary: Summary
     settings: Settings
@@ -318,6 +319,8 @@ class Refined(NamedTuple):
     texture_margin: float | None
     notes: tuple
     warnings: tuple
+    other: Summary | None = None
+    weight: float = 1.0
 
 
 def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> Refined:
@@ -333,11 +336,11 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
                         if int(s.status) != _UNSETTLED else
                         f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
     window = settings.window
-    window_margin = None
+    window_margin, other, weight = None, None, 1.0
     bin_factor = float(rec.seg.bin_factor)
     if options.window is None and settings.hertz is not None:
         gauss = settings._replace(hertz=None)
-        s, choice, window_margin, note = model_select.choose_window(
+        s, choice, window_margin, note, other, weight = model_select.choose_window(
             s, lambda th, fr: settle(rec, gauss, run.refit(rec, gauss, th, fr))[0], bin_factor=bin_factor)
         if choice == "gaussian":
             settings, window = gauss, "gaussian"
@@ -354,7 +357,16 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
                                                                        bin_factor=bin_factor)
         notes.append(note)
     return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
-                   tuple(warnings))
+                   tuple(warnings), other, weight)
+
+
+def averaged(res: FitResult, refined: Refined, *, velocity=None, curvature_radius=None) -> FitResult:
+    """``res`` (of ``refined``'s summary) with vx, vy and a averaged over both windows where the data cannot
+    tell them apart (``select.average_windows``); ``fit`` and ``batch`` both call this."""
+    if refined.other is not None and res.status not in (Status.NO_BAND, Status.FAILED):
+        other = result_from_summary(refined.other, velocity=velocity, curvature_radius=curvature_radius)
+        model_select.average_windows(res, other, refined.weight, refined.window)
+    return res
 
 
 def _layered(rec: Record, settings: Settings, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
@@ -374,6 +386,7 @@ def _layered(rec: Record, settings: Settings, s: Summary, options: FitOptions, c
     res.texture, res.texture_margin = model_select.texture_name(s.free), refined.texture_margin
     res.message = "; ".join(m for m in (res.message, *refined.notes) if m)
     add_profiles(res, s, refit, profile_minor=options.profile_minor)
+    averaged(res, refined, velocity=options.velocity, curvature_radius=curvature_radius)
     if note and note.startswith("model "):
         res.message = "; ".join(m for m in (note, res.message) if m)
     elif note:

@@ -53,6 +53,8 @@ __all__ = [
     "texture_name",
     "choose_texture",
     "choose_window",
+    "WindowChoice",
+    "average_windows",
     "WINDOW_DECISIVE",
     "TEXTURES",
     "window_needed",
@@ -277,7 +279,20 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
     return summary, "isotropic", ic_dir - ic_iso, ""
 
 
-def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
+class WindowChoice(NamedTuple):
+    """``choose_window``'s outcome: the kept summary, its window ("hertz" or "gaussian"), the margin
+    (positive favours the Hertz disk; None where not compared) and the note; where the data cannot tell the
+    windows apart, the other window's summary and the kept window's Akaike weight (else None and 1)."""
+
+    summary: Any
+    window: str
+    margin: float | None
+    note: str
+    other: Any = None
+    weight: float = 1.0
+
+
+def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> WindowChoice:
     """The contact window of one record: the Hertz fit ``summary`` against the Gaussian window.
 
     refit_gaussian(theta, free) -> ``core.Summary``: the Gaussian window's program from ``theta``. It
@@ -285,31 +300,66 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0):
     moment. Both models have the same parameters, so the criterion is the chi-square difference in
     units of the correlated-bin scale (the bin factor times the better fit's reduced chi-square, at
     least 1, as the noise scale of an F test is the better model's): positive favours Hertz. Below
-    ``WINDOW_DECISIVE`` the data cannot tell the windows apart: the Hertz estimates (a fingertip's
-    contact is a Hertz disk) are kept, unless only the Gaussian window describes the spectra (reduced
-    chi-square below ``POOR_FIT_REDCHI``), and the note gives the other window's speeds and radius.
-    Returns (summary, "hertz" or "gaussian", margin, note).
+    ``WINDOW_DECISIVE`` the data cannot tell the windows apart: the summary kept is the Hertz fit (a
+    fingertip's contact is a Hertz disk), unless only the Gaussian window describes the spectra (reduced
+    chi-square below ``POOR_FIT_REDCHI``), and the result averages the two windows' estimates
+    (``average_windows``) by their Akaike weights, exp(-margin / 2) relative.
     """
     if not _compared(summary):
-        return summary, "hertz", None, ""
+        return WindowChoice(summary, "hertz", None, "")
     theta = np.asarray(summary.theta).copy()
     theta[_I_A] -= np.log(HERTZ_PER_GAUSS)
     gauss = refit_gaussian(theta, np.asarray(summary.free, bool))
     chi_h, chi_g = float(summary.chi2), float(gauss.chi2)
     if not np.isfinite(chi_g):
-        return summary, "hertz", None, "the Gaussian window did not fit"
+        return WindowChoice(summary, "hertz", None, "the Gaussian window did not fit")
     scale = max(float(bin_factor), 1.0) * max(min(float(summary.redchi), float(gauss.redchi)), 1.0)
     margin = (chi_g - chi_h) / scale
     if margin >= WINDOW_DECISIVE:
-        return summary, "hertz", margin, ""
+        return WindowChoice(summary, "hertz", margin, "")
     if margin <= -WINDOW_DECISIVE:
-        return gauss, "gaussian", -margin, (f"Gaussian contact window (chi-square margin {-margin:.1f} over the "
-                                            "Hertz disk)")
+        return WindowChoice(gauss, "gaussian", -margin, f"Gaussian contact window (chi-square margin {-margin:.1f} "
+                                                        "over the Hertz disk)")
     keep_gauss = float(summary.redchi) > POOR_FIT_REDCHI >= float(gauss.redchi)
     kept, other, name = (gauss, summary, "Hertz") if keep_gauss else (summary, gauss, "Gaussian")
+    w_hertz = 1.0 / (1.0 + np.exp(-0.5 * margin))
     vx, vy, a = np.exp(np.asarray(other.theta)[[_I["log_vx"], _I["log_vy"], _I_A]])
-    note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): the "
-            f"{'Gaussian' if keep_gauss else 'Hertz'} window's estimates are given"
-            f"{', as only it describes the spectra' if keep_gauss else ''}; the {name} window gives "
+    note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): vx, vy and a are the "
+            f"average over both windows (Akaike weights: Hertz {w_hertz:.2f}, Gaussian {1 - w_hertz:.2f}; the other "
+            f"window's a scaled to the same second moment) and their errors include the windows' difference; the "
+            f"{'Gaussian' if keep_gauss else 'Hertz'} window's fit is the one shown"
+            f"{', as only it describes the spectra' if keep_gauss else ''}; the {name} window alone gives "
             f"|vx| = {100 * vx:.4g}, |vy| = {100 * vy:.4g} cm/s, a = {1e3 * a:.4g} mm")
-    return kept, ("gaussian" if keep_gauss else "hertz"), margin, note
+    return WindowChoice(kept, "gaussian" if keep_gauss else "hertz", margin, note, other,
+                        float(1.0 - w_hertz if keep_gauss else w_hertz))
+
+
+def average_windows(res, other, weight: float, window: str) -> None:
+    """Where the data cannot tell the contact windows apart: ``res``'s vx, vy and a (a ``FitResult`` of
+    ``window``) become the average with ``other``'s (the other window's) by the Akaike weight ``weight``
+    of ``window``, each error sqrt(sum_i w_i (err_i^2 + (v_i - mean)^2)) (model averaging), and a minor
+    speed's interval and bounds are widened to hold the other window's value shifted alike. The other
+    window's radius enters as ``window``'s radius of the same second moment (``HERTZ_PER_GAUSS``); the
+    contact depth follows a."""
+    to_mine = HERTZ_PER_GAUSS if window == "hertz" else 1.0 / HERTZ_PER_GAUSS    # other's a -> window's a
+    for q in ("vx", "vy", "a"):
+        mine, theirs = res[q], other[q]
+        if mine.value is None or theirs.value is None:
+            continue
+        f = to_mine if q == "a" else 1.0
+        v0, e0 = mine.value, mine.err or 0.0
+        v1, e1 = theirs.value * f, (theirs.err or 0.0) * f
+        mean = weight * v0 + (1.0 - weight) * v1
+        var = weight * (e0 ** 2 + (v0 - mean) ** 2) + (1.0 - weight) * (e1 ** 2 + (v1 - mean) ** 2)
+        fields = {"value": float(mean), "err": None if mine.err is None else float(np.sqrt(var))}
+        shift = v1 - v0
+        for b in ("lo", "lo2"):
+            if getattr(mine, b) is not None:
+                fields[b] = max(0.0, min(getattr(mine, b), getattr(mine, b) + shift))
+        for b in ("hi", "hi2", "upper"):
+            if getattr(mine, b) is not None:
+                fields[b] = max(getattr(mine, b), getattr(mine, b) + shift)
+        res.set(q, **fields)
+    a, r = res["a"], getattr(res, "curvature_radius", None)
+    if a.value is not None and r:
+        res.set("contact_depth", value=a.value ** 2 / r, err=None if a.err is None else 2 * a.value * a.err / r)
