@@ -190,7 +190,7 @@ def _stage_programs():
             free = jnp.where(start.use, start.free, free)
             skip = start.use
         n_first, n_start, n_final = core_mod.ITERATIONS
-        out = levenberg_marquardt(core_mod.residuals_and_model, starts, prep.data, free, prep.first,
+        out = levenberg_marquardt(core_mod.residuals_and_model, starts, (prep.data, None), free, prep.first,
                                   n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip)
         return out, free
 

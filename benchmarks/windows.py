@@ -10,14 +10,19 @@ and by the per-pair scipy reference (``scipy_reference.fit_record``, Gaussian
 exact R curve, no 2-D model).
 
 Reported per physics and fit: statuses; over the ``ok`` rows both speeds
-within 2 % of |v|, a within 5 %, 1-sigma coverage of vx, vy and a; for the
+within 2 % of |v|, a within 5 %, 1-sigma coverage of vx, vy and a (of the
+interval the fit states: a minor speed's profile-likelihood interval where it
+has one, else value -/+ err; a speed reported as consistent with 0, with a
+95 % upper bound, is left out); "confident wrong": ``ok`` with a quantity
+outside its 3-sigma interval (a profile interval's 2-sigma one widened by
+half; twice an upper bound); for the
 default, how often the chosen window is the one that made the data (among
 all scenes, and among those whose margin is decisive, > 10); the median time
 per fit (warm). Hertz scenes' a is the Hertz radius, the quantity a Hertz fit
 reports; a Gaussian fit's a of a Hertz scene is compared with it too, which
 shows the bias of the Gaussian window's radius.
 
-    python benchmarks/windows.py --scenes 50 --out benchmarks/out      # 100 scenes, 300 fits: ~15 min on 2 cores
+    python benchmarks/windows.py --scenes 50 --out benchmarks/out      # 100 scenes, 300 fits: ~26 min on 2 cores
     python benchmarks/windows.py --scenes 6 --out /tmp/win              # a quick look
 """
 
@@ -95,8 +100,10 @@ def run_physics(physics: str, n: int, verbose: bool = True) -> list[dict]:
             t0 = time.perf_counter()
             res = tj.fit_recording(rec, tj.FitOptions(window=window))
             fit = {k: getattr(res, k) for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi", "window",
-                                                "model_margin", "window_margin")
+                                                "model_margin", "window_margin", "texture")
                    if hasattr(res, k)}
+            # a minor component's profile-likelihood interval (1 and 2 sigma) and a 95 % upper bound, where given
+            fit.update({f"{q}_{b}": getattr(res[q], b) for q in ("vx", "vy") for b in ("lo", "hi", "lo2", "hi2", "upper")})
             fit.update(status=str(res.status), seconds=time.perf_counter() - t0, message=res.message)
             row["fits"][name] = fit
         t0 = time.perf_counter()
@@ -148,6 +155,27 @@ def _dev(row, fit, name):
     return None if v is None else abs(v - row[name + "_true"])
 
 
+def _interval(fit, q, n_sigma):
+    """The n-sigma interval (n = 1 or 3) the fit states for q, or None where it states none at that level:
+    a speed consistent with 0 has a 95 % upper bound U and no 1-sigma interval (3 sigma: [0, 2 U]); a minor
+    speed has a profile-likelihood interval (1 sigma: lo, hi; 3 sigma: its 2-sigma interval widened by
+    half, an approximation); anything else value -/+ n err."""
+    v, lo, hi, lo2, hi2, upper = (fit.get(f"{q}{s}") for s in ("", "_lo", "_hi", "_lo2", "_hi2", "_upper"))
+    if upper is not None:
+        return None if n_sigma == 1 else (0.0, 2.0 * upper)
+    if lo is not None:
+        if n_sigma == 1:
+            return lo, (np.inf if hi is None else hi)
+        return v - 1.5 * (v - lo2), (np.inf if hi2 is None else v + 1.5 * (hi2 - v))
+    err = fit.get(q + "_err")
+    return None if not err else (v - n_sigma * err, v + n_sigma * err)
+
+
+def _inside(row, fit, q, n_sigma):
+    lo, hi = _interval(fit, q, n_sigma)
+    return lo <= row[q + "_true"] <= hi
+
+
 def summarize(rows: list[dict], name: str) -> dict:
     fits = [(r, r["fits"][name]) for r in rows]
     ok = [(r, f) for r, f in fits if f["status"] == "ok"]
@@ -160,12 +188,12 @@ def summarize(rows: list[dict], name: str) -> dict:
                                                      for k in ("vx", "vy")), ok)
     out["a_5pct"] = share(lambda r, f: _dev(r, f, "a") is not None and _dev(r, f, "a") <= 0.05 * r["a_true"], ok)
     for q in ("vx", "vy", "a"):
-        pool = [(r, f) for r, f in ok if f.get(q) is not None and f.get(q + "_err")]
-        out[q + "_cover1"] = share(lambda r, f: _dev(r, f, q) <= f[q + "_err"], pool)
+        pool = [(r, f) for r, f in ok if f.get(q) is not None and _interval(f, q, 1) is not None]
+        out[q + "_cover1"] = share(lambda r, f: _inside(r, f, q, 1), pool)
     # status ok with vx, vy or a more than 3 of its sigmas from the truth, as a share of all scenes
     out["confident_wrong"] = share(lambda r, f: f["status"] == "ok" and any(
-        f.get(q) is not None and f.get(q + "_err") and _dev(r, f, q) > 3 * f[q + "_err"] for q in ("vx", "vy", "a")),
-        fits)
+        f.get(q) is not None and _interval(f, q, 3) is not None and not _inside(r, f, q, 3)
+        for q in ("vx", "vy", "a")), fits)
     out["seconds_median"] = float(np.median([f["seconds"] for _, f in fits[1:]] or [fits[0][1]["seconds"]]))
     if name == "default":
         right = [(r, f) for r, f in fits if f.get("window") is not None]
