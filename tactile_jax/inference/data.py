@@ -71,7 +71,8 @@ class JointData(NamedTuple):
 
     meas: ``Measured``. omega: (L,) bin frequencies, rad/s. grid_abs: |omega| where the model's densities
     are computed: the integer grid (``grid_offsets``, F) under the Gaussian window, whose smooth densities
-    are interpolated to half bins, or the half-bin grid itself (``half_offsets``, H) under the Hertz window. log_kernel: (J,) log spectral-window weights at
+    are interpolated to half bins, or the half-bin grid itself (``half_offsets``, H) under the Hertz
+    window. log_kernel: (J,) log spectral-window weights at
     ``segments.KERNEL_OFFSETS`` (-2e4: none). white_half, white_bin: (2, H), (2, L) log |A|^2 of each
     pair's prewhitening filter on the half-bin grid and at the bins; xy_white_half, xy_white_bin:
     (H,), (L,) complex conj(A_x) A_y. depths: (2,) m. log_k_knots: (n,) log rad/m.

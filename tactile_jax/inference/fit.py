@@ -30,15 +30,15 @@ from ..uncertainty.profile import add_profiles
 from . import run
 from . import select as model_select
 from .core import Record, Settings, Summary
-
-#: ``Summary.status`` of a fit that has not settled
-_UNSETTLED = FIT_CODES.index(Status.NOT_CONVERGED)
 from .forward import PARAMS
 from .options import FitOptions, known_gains, options_from_file, settings_of
 from .pair_fit import fit_pair
 from .problem import FitProblem
 from .residuals import residuals as joint_residuals
 from .result import A_BOUNDS, V_BOUNDS, FitResult, result_from_summary, set_contact_depth, texture_sections
+
+#: ``Summary.status`` of a fit that has not settled
+_UNSETTLED = FIT_CODES.index(Status.NOT_CONVERGED)
 
 __all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "refine", "Refined", "settle",
            "with_line_model", "result_from_lines", "NO_XY_MESSAGE"]

@@ -11,8 +11,9 @@ The densities of the ten entries of the spectral matrix (``lines``) are
 computed on the half-bin grid of the spectral window's reach under the Hertz
 window, and under the Gaussian window (smooth densities, half the cost) on
 the integer-bin grid, interpolated to half bins (cubic in log density: the
-resolution rule keeps the log ratio's fall below 0.15 per bin); then averaged by the estimator's spectral window with the
-prewhitening filter's weight |A|^2 (for x-y entries the complex conj(A_x) A_y):
+resolution rule keeps the log ratio's fall below 0.15 per bin); then
+averaged by the estimator's spectral window with the prewhitening filter's
+weight |A|^2 (for x-y entries the complex conj(A_x) A_y):
 each bin's expectation is what Welch or multitaper averaging of these
 densities gives, so the resolution bias of steep spectra is modelled, not an
 error. Gains, levels and the white-noise floors (measured, or the fitted

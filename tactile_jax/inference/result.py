@@ -22,7 +22,7 @@ from .forward import N_PHYS, PARAMS, param_names
 from .problem import FitProblem
 
 __all__ = ["Estimate", "FitResult", "TextureSection", "QUANTITIES", "RESULT_FIELDS", "result_from_summary",
-           "set_contact_depth", "plain", "model_curves", "A_BOUNDS", "V_BOUNDS", "OWN_SCALE_PARAMS"]
+           "set_contact_depth", "update_contact_depth", "plain", "model_curves", "A_BOUNDS", "V_BOUNDS", "OWN_SCALE_PARAMS"]
 
 #: the data contract's result fields, in order; ``FitResult.to_record`` adds more after them
 RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth",
@@ -221,16 +221,24 @@ def set_contact_depth(res: FitResult, curvature_radius) -> None:
     """Hertz contact depth d = a^2 / R (paper section 6.3) of ``res``'s a, with its error."""
     r = float(curvature_radius) if curvature_radius else PAPER_SENSOR.curvature_radius
     res.curvature_radius = r
-    a = res["a"]
-    if a.value is not None:
-        res.set("contact_depth", value=a.value ** 2 / r, err=None if a.err is None else 2 * a.value * a.err / r)
-    elif a.lower is not None:
-        res.set("contact_depth", lower=a.lower ** 2 / r)
+    update_contact_depth(res)
     if not curvature_radius:
         res.warnings.append(f"curvature_radius not given: contact depth assumes R = {1e3 * r:g} mm")
 
 
 _I = {name: i for i, name in enumerate(PARAMS)}
+
+
+def update_contact_depth(res: FitResult) -> None:
+    """``res``'s contact depth d = a^2 / R at its ``curvature_radius`` R, from its a (value and error, or lower
+    bound): after a changes (``set_contact_depth`` sets R)."""
+    r, a = res.curvature_radius, res["a"]
+    if not r:
+        return
+    if a.value is not None:
+        res.set("contact_depth", value=a.value ** 2 / r, err=None if a.err is None else 2 * a.value * a.err / r)
+    elif a.lower is not None:
+        res.set("contact_depth", lower=a.lower ** 2 / r)
 
 
 def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, model: str = "joint",

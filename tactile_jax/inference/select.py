@@ -38,6 +38,7 @@ from ..errors import TactileInputError
 from ..status import FIT_CODES, Status
 from .core import HERTZ_PER_GAUSS, POOR_FIT_REDCHI
 from .forward import PARAMS
+from .result import update_contact_depth
 
 __all__ = [
     "A_NEGLIGIBLE",
@@ -360,6 +361,4 @@ def average_windows(res, other, weight: float, window: str) -> None:
             if getattr(mine, b) is not None:
                 fields[b] = max(getattr(mine, b), getattr(mine, b) + shift)
         res.set(q, **fields)
-    a, r = res["a"], getattr(res, "curvature_radius", None)
-    if a.value is not None and r:
-        res.set("contact_depth", value=a.value ** 2 / r, err=None if a.err is None else 2 * a.value * a.err / r)
+    update_contact_depth(res)
