@@ -71,7 +71,8 @@ def run(n: int, options: FitOptions = FitOptions(), seed: int = 2026, verbose: b
         row = {"i": i, "vx_true": abs(scene.velocity[0]), "vy_true": abs(scene.velocity[1]), "a_true": scene.a,
                "snr_db": scene.snr_db, "speed": float(np.hypot(*scene.velocity)),
                "angle_deg": float(np.degrees(np.arctan2(abs(scene.velocity[1]), abs(scene.velocity[0])))),
-               "sim_s": t1 - t0, "fit_s": t2 - t1, **res.to_record(), "jackknife": res.jackknife}
+               "sim_s": t1 - t0, "fit_s": t2 - t1, **res.to_record(),
+               "jackknife": res.error_method.startswith("laplace x jackknife")}
         rows.append(row)
         if verbose:
             print(_line(row), flush=True)

@@ -17,7 +17,9 @@ has one, else value -/+ err; a speed reported as consistent with 0, with a
 outside its 3-sigma interval (a profile interval's 2-sigma one widened by
 half; twice an upper bound); for the
 default, how often the chosen window is the one that made the data (among
-all scenes, and among those whose margin is decisive, > 10); the median time
+all scenes, and among those whose margin is decisive, > 10); how often the
+slip model holds a speed at 0, on the scenes along x (right) and on the
+oblique ones (a truth that is not 0, read as 0 with an upper bound); the median time
 per fit (warm). Hertz scenes' a is the Hertz radius, the quantity a Hertz fit
 reports; a Gaussian fit's a of a Hertz scene is compared with it too, which
 shows the bias of the Gaussian window's radius.
@@ -100,7 +102,7 @@ def run_physics(physics: str, n: int, verbose: bool = True) -> list[dict]:
             t0 = time.perf_counter()
             res = tj.fit_recording(rec, tj.FitOptions(window=window))
             fit = {k: getattr(res, k) for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi", "window",
-                                                "model_margin", "window_margin", "texture")
+                                                "model_margin", "window_margin", "texture", "direction", "direction_margin")
                    if hasattr(res, k)}
             # a minor component's profile-likelihood interval (1 and 2 sigma) and a 95 % upper bound, where given
             fit.update({f"{q}_{b}": getattr(res[q], b) for q in ("vx", "vy") for b in ("lo", "hi", "lo2", "hi2", "upper")})
@@ -194,6 +196,10 @@ def summarize(rows: list[dict], name: str) -> dict:
     out["confident_wrong"] = share(lambda r, f: f["status"] == "ok" and any(
         f.get(q) is not None and _interval(f, q, 3) is not None and not _inside(r, f, q, 3)
         for q in ("vx", "vy", "a")), fits)
+    # the slip model: scenes along x whose vy is held at 0, oblique scenes with a speed held (truth not 0)
+    out["held_along_x"] = share(lambda r, f: f.get("direction") == "along x", [(r, f) for r, f in ok if r["vy_true"] == 0])
+    out["held_oblique"] = share(lambda r, f: f.get("direction") not in (None, "oblique"),
+                                [(r, f) for r, f in ok if r["vy_true"] > 0])
     out["seconds_median"] = float(np.median([f["seconds"] for _, f in fits[1:]] or [fits[0][1]["seconds"]]))
     if name == "default":
         right = [(r, f) for r, f in fits if f.get("window") is not None]
@@ -210,7 +216,8 @@ def _pct(x):
 
 def table(summary: dict) -> str:
     lines = ["| physics | fit | statuses | both speeds within 2 % | a within 5 % | 1-sigma cover vx / vy / a | "
-             "confident wrong | default picks the physics (decisive) | s / fit |", "|---|---|---|---|---|---|---|---|---|"]
+             "confident wrong | default picks the physics (decisive) | speed held at 0: along x / oblique | s / fit |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for physics, by_fit in summary.items():
         for name, s in by_fit.items():
             st = ", ".join(f"{k} {v}" for k, v in sorted(s["status"].items()))
@@ -218,7 +225,8 @@ def table(summary: dict) -> str:
             pick = (f"{_pct(s['chose_physics'])} ({_pct(s['chose_physics_decisive'])} of {s['n_decisive']})"
                     if name == "default" else "")
             lines.append(f"| {physics} | {name} | {st} | {_pct(s['both_speeds_2pct'])} | {_pct(s['a_5pct'])} | "
-                         f"{cover} | {_pct(s.get('confident_wrong'))} | {pick} | {s['seconds_median']:.2f} |")
+                         f"{cover} | {_pct(s.get('confident_wrong'))} | {pick} | "
+                         f"{_pct(s.get('held_along_x'))} / {_pct(s.get('held_oblique'))} | {s['seconds_median']:.2f} |")
     return "\n".join(lines)
 
 

@@ -221,7 +221,8 @@ def test_workers_without_dask_name_the_extra(dataset, tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_near_axis_slips_no_ok_row_beyond_3_sigma(tmp_path):
     """50 slips within 10 deg of an axis (16 s, 50 dB, a 1.5-3 mm): each speed of an ``ok`` row is within
-    3 sigma of the truth, or reported undetermined with a bound that holds it."""
+    3 sigma of the truth, or reported undetermined with a bound that holds it, or held at 0 by the slip
+    direction where the truth is below 3 % of |v| (the fits' speed errors are about 0.5 % of |v|)."""
     rng = np.random.default_rng(2031)
     truth, records = [], []
     for k in range(50):
@@ -244,6 +245,10 @@ def test_near_axis_slips_no_ok_row_beyond_3_sigma(tmp_path):
             value, err, upper = row[name], row[f"{name}_err"], row.get(f"{name}_upper")
             if value is None:
                 assert upper is not None and t <= upper, (row["index"], name, t, upper)
+            elif err is None:           # held at 0: the minor speed of a slip along the other axis
+                assert value == 0.0 and row["direction"] == f"along {'y' if name == 'vx' else 'x'}", row
+                if t > 0.03 * np.hypot(vx, vy):
+                    bad.append((int(row["index"]), name, t, value, "held"))
             elif abs(value - t) > 3 * err:
                 bad.append((int(row["index"]), name, t, value, err))
     assert not bad, bad

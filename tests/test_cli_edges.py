@@ -81,3 +81,19 @@ def test_truth_is_placed_against_the_bound_not_the_laplace_sigma():
                 if ln.strip().startswith("vy"))
     assert "sigma" not in line.split("consistent with 0")[1] and "truth 0, inside the bound" in line
     assert not math.isnan(res.vy_upper)
+
+
+def test_a_held_speed_reads_as_held_with_its_bound():
+    from tactile_jax.inference.result import FitResult
+    from tactile_jax.viz.report import fit_report
+
+    res = FitResult(converged=True, redchi=1.0, chi2=100.0, n_bins=40, n_residuals=120, n_params=12,
+                    direction="along x")
+    res.set("vx", value=0.03, err=3e-4)
+    res.set("vy", value=0.0, fixed=True, upper=6e-4)
+    res.set("a", value=2e-3, err=1e-5)
+    text = fit_report(res)
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("vy"))
+    assert "0 (held: slip along x; 95 % upper bound 0.06 cm/s)" in line, line
+    assert "slip along x" in next(ln for ln in text.splitlines() if ln.strip().startswith("model:"))
+    assert res.to_record()["direction"] == "along x" and res.to_record()["vy_upper"] == 6e-4

@@ -102,8 +102,8 @@ def test_the_window_that_made_the_data_is_chosen():
 def test_a_hertz_slip_along_x_reads_no_minor_speed():
     """A Hertz contact (a 1.53 mm) slipping along x at 1.97 cm/s, 16 s at 50 dB: the y pair's densities dip
     between bins at the disk spectrum's nulls, so the model must follow them there. Then the fit describes
-    the spectra (reduced chi-square near 1) and vy is consistent with its truth 0 at 2 sigma, not a small
-    number with a tight interval that excludes 0."""
+    the spectra (reduced chi-square near 1) and vy is consistent with its truth 0, not a small number with a
+    tight interval that excludes 0: the slip model holds it at 0 and bounds it."""
     from tactile_jax.simulation.scene import Scene, simulate
 
     rec = simulate(Scene(velocity=(0.01967, 0.0), contact_radius=1.531e-3, window="hertz", snr_db=49.5,
@@ -113,6 +113,8 @@ def test_a_hertz_slip_along_x_reads_no_minor_speed():
     assert res.vx == pytest.approx(0.01967, rel=0.01) and res.a == pytest.approx(1.531e-3, rel=0.02)
     est = res["vy"]
     assert est.lo2 == 0.0 or est.upper is not None or est.value < 2.0 * (est.err or 0.0), (est, res.message)
+    # a vy the data do not need is held at 0 by the slip model, with its profile's upper bound
+    assert res.direction == "along x" and est.value == 0.0 and 0.0 < est.upper < 0.002, (res.direction, est, res.message)
 
 
 def _summary(chi2, redchi, theta=None, status=0):
@@ -157,6 +159,39 @@ def test_window_choice_by_chi_square_margin(chi_h, red_h, chi_g, red_g, bin_fact
     no_band = _summary(1.0, 1.0, status=1)                        # nothing to compare: no refit
     got = ms.choose_window(no_band, None)
     assert got.summary is no_band and tuple(got[1:]) == ("hertz", None, "", None, 1.0)
+
+
+@pytest.mark.parametrize("vy, rise, scale, held", [
+    (0.001, 1.5, 1.0, True),         # within 1.4 sigma of 0: a fitted vy would be noise
+    (0.001, 5.0, 1.0, False),        # holding it costs 5 > 2: the data need it
+    (0.001, 5.0, 3.0, True),         # ... unless its error scale (jackknife) is 3: 5 / 3 < 2
+    (0.012, 0.0, 1.0, False),        # 0.4 of the major speed: not tested, no refit
+])
+def test_a_minor_speed_the_data_do_not_need_is_held_at_0(vy, rise, scale, held):
+    """Akaike's criterion in units of the minor speed's error scale: held where the refit with it at
+    ``AXIS_FLOOR`` of the major speed raises chi-square by at most 2 of that scale."""
+    import types
+
+    base = _summary(400.0, 1.0, theta=np.log(np.r_[0.03, vy, 2e-3, np.ones(16)]))
+    base.scales = np.full(19, scale)
+    axis = types.SimpleNamespace(theta=base.theta, free=base.free.copy(), chi2=400.0 + rise, status=0)
+    calls = []
+
+    def refit(theta, free):
+        calls.append((np.asarray(theta).copy(), np.asarray(free).copy()))
+        axis.free = np.asarray(free).copy()
+        return axis
+
+    got, name, margin, note = ms.choose_direction(base, refit)
+    assert (got is axis) == held and name == ("along x" if held else "oblique")
+    if vy > ms.DIRECTION_TESTED * 0.03:
+        assert not calls and margin is None and note == ""
+        return
+    theta, free = calls[0]
+    assert np.exp(theta[1]) == pytest.approx(ms.AXIS_FLOOR * 0.03) and not free[1] and free[0]
+    assert margin == pytest.approx(abs(2.0 - rise / scale))
+    assert ("vy held at 0" in note) == held
+    assert ms.direction_name(free) == "along x" and ms.direction_name(base.free) == "oblique"
 
 
 def test_windows_the_data_cannot_tell_apart_are_averaged():

@@ -64,7 +64,9 @@ def assert_honest(res, truth: dict, *, allowed=("ok", "poor_fit", "no_band", "no
             if name == "a" and res.a_lower is not None:
                 assert res.a_lower <= true * 1.05, f"a_lower {res.a_lower} above the truth {true}"
             continue
-        if err is None:         # a fixed parameter
+        if err is None:         # a fixed parameter, or a minor speed held at 0 below its 95 % upper bound
+            upper = getattr(res, name + "_upper", None) if name in ("vx", "vy") else None
+            assert upper is None or true <= 2.0 * upper, f"{name} held at {value}, truth {true} above 2 x {upper}"
             continue
         assert err > 0, f"{name}_err = {err}"
         z = abs(value - true) / err

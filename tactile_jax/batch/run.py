@@ -319,6 +319,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                                           model=model_name(s.free, vel is not None), segments=r.seg)
                 res.window, res.window_margin = f.window, f.window_margin
                 res.texture, res.texture_margin = f.texture, f.texture_margin
+                res.direction, res.direction_margin = f.direction, f.direction_margin
                 res.message = "; ".join(m for m in (res.message, *f.notes) if m)
                 res = averaged(res, f, velocity=vel, curvature_radius=radius)
                 res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,

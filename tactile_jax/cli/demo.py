@@ -116,7 +116,11 @@ def demo(out_dir, seed, duration, method):
     click.echo("")
     click.echo(f"  {'quantity':<26}{'truth':>10}{'estimate':>22}{'deviation':>18}")
 
-    def row(name, truth, est, err, scale, unit):
+    def row(name, truth, est, err, scale, unit, upper=None):
+        if upper is not None and est is not None and err is None:       # held at 0 by the slip direction
+            click.echo(f"  {name:<26}{scale * truth:>10.4f}{'0 (held), < ' + f'{scale * upper:.4f}':>22}"
+                       f"{'95 % bound':>18}  {unit}")
+            return
         if est is None or err is None:
             click.echo(f"  {name:<26}{scale * truth:>10.4f}{'not determined':>22}")
             return
@@ -127,7 +131,7 @@ def demo(out_dir, seed, duration, method):
 
     row("|vx|, Eq. 6 slope", v, float(line.speed), float(line.speed_err), 100, "cm/s")
     row("|vx|, joint fit", v, ex.vx, ex.vx_err, 100, "cm/s")
-    row("|vy|, joint fit", abs(r.scene.velocity[1]), ex.vy, ex.vy_err, 100, "cm/s")
+    row("|vy|, joint fit", abs(r.scene.velocity[1]), ex.vy, ex.vy_err, 100, "cm/s", ex.vy_upper)
     row("a, joint fit", r.scene.contact_radius, ex.a, ex.a_err, 1e3, "mm")
     dof = max(int(line.n_bins) - 2, 1)
     if chi2.sf(float(line.redchi) * dof, dof) < 1e-3:

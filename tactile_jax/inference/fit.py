@@ -307,9 +307,10 @@ class _Refitter(NamedTuple):
 
 class Refined(NamedTuple):
     """``refine``'s outcome: the summary and the settings of the models chosen (their window, hence
-    program), the window and texture models with their margins and what to say of them (``notes``, for
-    the message), warnings (more solves), and where the data cannot tell the windows apart the other
-    window's summary and the kept window's weight (``select.average_windows``; else None and 1)."""
+    program), the window, texture and slip-direction models with their margins and what to say of them (``notes``,
+    for the message), warnings (more solves), where the data cannot tell the windows apart the other
+    window's summary and the kept window's weight (``select.average_windows``; else None and 1), and
+    where a minor speed is held at 0 the fit with it free (``oblique``: its profile bounds the speed)."""
 
     summary: Summary
     settings: Settings
@@ -321,14 +322,18 @@ class Refined(NamedTuple):
     warnings: tuple
     other: Summary | None = None
     weight: float = 1.0
+    direction: str = "oblique"
+    direction_margin: float | None = None
+    oblique: Summary | None = None
 
 
 def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> Refined:
     """What ``fit`` and ``batch`` both do after the pipeline's first solve ``s`` under ``settings``: more
     solves where the fit has not settled; the contact window (``select.choose_window``: the Hertz fit
     against a Gaussian refit from it) unless ``options.window`` forces one; then the texture model
-    (``select.choose_texture``) unless ``options.texture`` forces one. Every refit runs the program of
-    its window from a given start."""
+    (``select.choose_texture``) unless ``options.texture`` forces one; then the slip direction
+    (``select.choose_direction``: a minor speed the data do not need is held at 0). Every refit runs the
+    program of its window from a given start."""
     warnings, notes = [], []
     s, more = settle(rec, settings, s)
     if more:
@@ -356,8 +361,12 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
         s, texture, texture_margin, note = model_select.choose_texture(s, _Refitter(rec, settings),
                                                                        bin_factor=bin_factor)
         notes.append(note)
+    oblique = s
+    s, direction, direction_margin, note = model_select.choose_direction(
+        s, lambda th, fr: settle(rec, settings, run.refit(rec, settings, th, fr))[0])
+    notes.append(note)
     return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
-                   tuple(warnings), other, weight)
+                   tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique)
 
 
 def averaged(res: FitResult, refined: Refined, *, velocity=None, curvature_radius=None) -> FitResult:
@@ -384,8 +393,9 @@ def _layered(rec: Record, settings: Settings, s: Summary, options: FitOptions, c
     res.model_margin = margin
     res.window, res.window_margin = refined.window, refined.window_margin
     res.texture, res.texture_margin = model_select.texture_name(s.free), refined.texture_margin
+    res.direction, res.direction_margin = refined.direction, refined.direction_margin
     res.message = "; ".join(m for m in (res.message, *refined.notes) if m)
-    add_profiles(res, s, refit, profile_minor=options.profile_minor)
+    add_profiles(res, s, refit, profile_minor=options.profile_minor, oblique=refined.oblique)
     averaged(res, refined, velocity=options.velocity, curvature_radius=curvature_radius)
     if note and note.startswith("model "):
         res.message = "; ".join(m for m in (note, res.message) if m)

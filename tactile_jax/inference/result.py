@@ -50,7 +50,8 @@ class Estimate:
     (None where the quantity is fixed or undetermined). lo, hi / lo2, hi2: the 1- / 2-sigma
     profile-likelihood interval, where the Laplace error does not describe the quantity (a minor
     speed component). lower / upper: a one-sided 95 % bound (a contact window too weak to measure,
-    a speed consistent with 0). fixed: held at a value given from outside (a known velocity or gain).
+    a speed consistent with 0). fixed: held at a value given from outside (a known velocity or gain), or
+    a minor speed held at 0 by the slip direction (``select.choose_direction``; ``upper`` bounds it).
     """
 
     value: float | None = None
@@ -119,6 +120,8 @@ class FitResult:
     window_margin: float | None = None
     texture: str = "isotropic"
     texture_margin: float | None = None
+    direction: str = "oblique"
+    direction_margin: float | None = None
     converged: bool = False
     model_margin: float | None = None
     status: Status = Status.OK
@@ -181,8 +184,9 @@ class FitResult:
                 column = quantity if field == "value" else (f"{quantity}_err" if field == "err"
                                                             else f"{quantity}_{field}")
                 row[column] = plain(getattr(self.estimates[quantity], field))
-        for extra in ("window_margin", "texture", "texture_margin", "redchi", "n_bins", "cond", "aic", "bic", "solver", "precision", "model_margin",
-                      "error_scale", "error_method", "cross_pairs"):
+        for extra in ("window_margin", "texture", "texture_margin", "direction", "direction_margin", "redchi", "n_bins",
+                      "cond", "aic", "bic", "solver", "precision", "model_margin", "error_scale", "error_method",
+                      "cross_pairs"):
             row[extra] = plain(getattr(self, extra))
         if self.posterior is not None:
             row.update(self.posterior_record())
@@ -295,8 +299,8 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     speeds = {"vx": float(np.exp(theta[_I["log_vx"]])), "vy": float(np.exp(theta[_I["log_vy"]]))}
     for axis, name in enumerate(("vx", "vy")):
         i, v = _I["log_" + name], speeds[name]
-        if not free[i]:
-            res.set(name, value=float(abs(velocity[axis])) if velocity is not None else v, fixed=True)
+        if not free[i]:         # a known velocity, or a minor speed held at 0 (slip along an axis)
+            res.set(name, value=float(abs(velocity[axis])) if velocity is not None else 0.0, fixed=True)
             continue
         err = v * float(sd[i])
         res.set(name, value=v, err=err)

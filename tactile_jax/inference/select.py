@@ -25,6 +25,11 @@ from it, and keeps the lowest BIC with the correlated-bin correction
 reduced chi-square of the largest candidate, at least 1, a quasi-likelihood
 scale so that misfit is not read as evidence; k free parameters, n bins).
 The margin is the BIC of the runner-up minus the chosen one's.
+
+Whatever ``model`` says, ``fit`` and ``batch`` choose per record, through the
+same program: the contact window (``choose_window``), the texture model
+(``choose_texture``) and the slip direction (``choose_direction``: a minor
+speed the data do not need is held at 0).
 """
 
 from __future__ import annotations
@@ -58,6 +63,9 @@ __all__ = [
     "average_windows",
     "WINDOW_DECISIVE",
     "TEXTURES",
+    "DIRECTIONS",
+    "choose_direction",
+    "direction_name",
     "window_needed",
 ]
 
@@ -70,6 +78,13 @@ _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_no
 _I_ANISO = (_I["aniso_p"], _I["aniso_q"])
 #: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
 TEXTURES = ("isotropic", "directional")
+#: the slip directions: both speeds free, or the minor one held at 0 (``choose_direction``)
+DIRECTIONS = ("oblique", "along x", "along y")
+#: a minor speed below this fraction of the major one is tested against 0 (``uncertainty.profile.MINOR_PROFILE``)
+DIRECTION_TESTED = 0.3
+#: a speed held at 0 is held at this fraction of the other (the parameter is log|v|): its effect on the
+#: spectra, quadratic in it, is 1e-6 of the major speed's
+AXIS_FLOOR = 1e-3
 #: a window margin (chi-square in units of the correlated-bin scale) at least this large decides between the windows
 WINDOW_DECISIVE = 6.0
 #: a poor isotropic fit is explained by a directional lobe when that brings its reduced chi-square this low
@@ -278,6 +293,51 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
                 f"{angle:.0f} deg, anisotropy {(1 + contrast) / (1 - contrast):.2f}")
         return directional, "directional", ic_iso - ic_dir, note
     return summary, "isotropic", ic_dir - ic_iso, ""
+
+
+def direction_name(free) -> str:
+    """The slip direction a free mask fits: "along x" where vy is held (and vx free), "along y" where vx is."""
+    free = np.asarray(free, bool)
+    vx, vy = free[_I["log_vx"]], free[_I["log_vy"]]
+    if vx == vy:
+        return "oblique"
+    return "along x" if vx else "along y"
+
+
+def choose_direction(summary, refit):
+    """The slip direction of one record: both speeds free ("oblique"), or along an axis (the minor one held at 0).
+
+    refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
+    Tested where both speeds are free and the minor one is below ``DIRECTION_TESTED`` of the major: the
+    refit holds it at ``AXIS_FLOOR`` of the major (0 to the spectra), the other parameters started at
+    the oblique optimum. Akaike's criterion in units of the minor speed's own error scale (its
+    jackknife variance ratio, the unit of its profile intervals): the axis model is kept where holding
+    the speed raises chi-square by at most 2 of that scale, i.e. where the speed is within 1.4 sigma of
+    0 and a fitted value would be noise. The profile gives the held speed its 95 % upper bound.
+    Returns (summary, name, margin in AIC units (the loser's minus the winner's; None where not
+    tested), note).
+    """
+    free = np.asarray(summary.free, bool)
+    iv = [_I["log_vx"], _I["log_vy"]]
+    if not _compared(summary) or not free[iv].all():
+        return summary, direction_name(free), None, ""
+    theta = np.asarray(summary.theta)
+    minor = int(np.argmin(theta[iv]))
+    i, major = iv[minor], iv[1 - minor]
+    if theta[i] - theta[major] >= np.log(DIRECTION_TESTED):
+        return summary, "oblique", None, ""
+    th, fr = theta.copy(), free.copy()
+    th[i], fr[i] = theta[major] + np.log(AXIS_FLOOR), False
+    axis = refit(th, fr)
+    if not _compared(axis) or not np.isfinite(float(axis.chi2)):
+        return summary, "oblique", None, ""
+    scale = max(float(np.asarray(summary.scales)[i]), 1e-12)
+    margin = 2.0 - (float(axis.chi2) - float(summary.chi2)) / scale      # AIC(oblique) - AIC(axis)
+    name, q = direction_name(fr), "vy" if minor == 1 else "vx"
+    if margin >= 0.0:
+        return axis, name, margin, (f"slip {name}: {q} held at 0 (AIC margin {margin:.1f} over a fitted {q}, "
+                                    f"in units of its error scale: the data do not need it)")
+    return summary, "oblique", -margin, ""
 
 
 class WindowChoice(NamedTuple):

@@ -33,8 +33,11 @@ def _fmt_speed(v):
     return "n/a" if v is None else f"{100 * v:.3g} cm/s"
 
 
-def add_profiles(res: FitResult, s, refit: Callable, *, profile_minor: bool = True) -> None:
-    """Bounds and intervals of ``res`` (see the module) from its summary ``s``; notes go to its message."""
+def add_profiles(res: FitResult, s, refit: Callable, *, profile_minor: bool = True, oblique=None) -> None:
+    """Bounds and intervals of ``res`` (see the module) from its summary ``s``; notes go to its message.
+
+    oblique: where the slip direction holds a minor speed at 0 (``select.choose_direction``), the fit with it free;
+    the held speed's 95 % upper bound is its profile from there."""
     if res.status in ("no_band", "failed"):
         return
     theta, free = np.asarray(s.theta), np.asarray(s.free, bool)
@@ -43,6 +46,15 @@ def add_profiles(res: FitResult, s, refit: Callable, *, profile_minor: bool = Tr
     iv = {"vx": _I["log_vx"], "vy": _I["log_vy"]}
     vx, vy = np.exp(theta[iv["vx"]]), np.exp(theta[iv["vy"]])
     notes = []
+    if oblique is not None:
+        o_free = np.asarray(oblique.free, bool)
+        for name, i in iv.items():
+            if o_free[i] and not free[i]:
+                upper = profile_bound(refit, oblique, o_free, i, direction=+1,
+                                      scale=float(np.asarray(oblique.scales)[i]))
+                res.set(name, upper=upper)
+                res.message = "; ".join(m for m in (res.message, f"{name} is consistent with 0 (95 % upper bound "
+                                                    f"{_fmt_speed(upper)})") if m)
     for name, i in iv.items():
         v, err = res[name].value, res[name].err
         if not free[i] or err is None or not (err > 0.5 * v or v < 1e-3 * max(vx, vy)):

@@ -99,7 +99,11 @@ def _variable_line(result, spec, truth, free) -> str:
     if not _finite(value):
         return head + _undetermined(result, attr, scale, unit, t)
     if fixed:
+        upper = getattr(result, f"{attr}_upper", None) if attr in ("vx", "vy") else None
         line = f"{_num(value * scale, 6)} (fixed)"
+        if _finite(upper):      # a minor speed held at 0 (slip along an axis)
+            line = (f"{_num(value * scale, 6)} (held: slip {result.direction}; 95 % upper bound "
+                    f"{_num(upper * scale, 3)} {unit})")
         return head + line + (f"    {truth_txt}" if truth_txt else "")
     if not _finite(err):
         line = f"{_num(value * scale, 6)} +/- n/a (no error bar: {_no_error_reason(result)})"
@@ -254,7 +258,8 @@ def fit_report(result, *, truth: dict | None = None) -> str:
     lines.append(f"    file:      {where}  (record {result.index})")
     chain = getattr(result, "cross_pairs", 0)
     chain = f", y pair given x ({chain} block{'s' if chain > 1 else ''}, x-y cross-spectra)" if chain else ""
-    lines.append(f"    model:     {result.model}, window {result.window}{chain}")
+    lines.append(f"    model:     {result.model}, window {result.window}, texture "
+                 f"{getattr(result, 'texture', 'isotropic')}, slip {getattr(result, 'direction', 'oblique')}{chain}")
     lines.append(f"    status:    {result.status}, converged {bool(result.converged)}")
     lines.append(f"    solver:    {result.solver}, precision {result.precision}")
 
