@@ -92,8 +92,8 @@ def test_a_held_speed_reads_as_held_with_its_bound():
     res.set("vx", value=0.03, err=3e-4)
     res.set("vy", value=0.0, fixed=True, upper=6e-4)
     res.set("a", value=2e-3, err=1e-5)
-    text = fit_report(res)
+    text = fit_report(res, truth={"vx": 0.03, "vy": 1e-4, "a": 2e-3})
     line = next(ln for ln in text.splitlines() if ln.strip().startswith("vy"))
-    assert "0 (held: slip along x; 95 % upper bound 0.06 cm/s)" in line, line
+    assert "0 (held: slip along x; 95 % upper bound 0.06 cm/s)" in line and "inside the bound" in line, line
     assert "slip along x" in next(ln for ln in text.splitlines() if ln.strip().startswith("model:"))
     assert res.to_record()["direction"] == "along x" and res.to_record()["vy_upper"] == 6e-4

@@ -194,6 +194,32 @@ def test_a_minor_speed_the_data_do_not_need_is_held_at_0(vy, rise, scale, held):
     assert ms.direction_name(free) == "along x" and ms.direction_name(base.free) == "oblique"
 
 
+def test_a_given_slip_direction_is_held_whatever_the_data_say():
+    """``FitOptions.direction``: "oblique" refits nothing; "along y" holds vx at 0 even as the major speed;
+    an unknown direction is a one-line input error."""
+    import types
+
+    from tactile_jax.errors import TactileInputError
+    from tactile_jax.inference.options import FitOptions, settings_of
+
+    base = _summary(400.0, 1.0, theta=np.log(np.r_[0.03, 0.001, 2e-3, np.ones(16)]))
+    base.scales = np.ones(19)
+    calls = []
+
+    def refit(theta, free):
+        calls.append((np.asarray(theta).copy(), np.asarray(free).copy()))
+        return types.SimpleNamespace(theta=theta, free=free, chi2=9e9, status=0)
+
+    got, name, margin, note = ms.choose_direction(base, refit, "oblique")
+    assert got is base and name == "oblique" and margin is None and not calls
+    got, name, margin, note = ms.choose_direction(base, refit, "along y")
+    theta, free = calls[0]
+    assert name == "along y" and margin is None and not free[0] and free[1]
+    assert np.exp(theta[0]) == pytest.approx(ms.AXIS_FLOOR * 0.001) and note == "slip along y (given): vx held at 0"
+    with pytest.raises(TactileInputError, match="direction must be one of oblique, along x, along y"):
+        settings_of(FitOptions(direction="sideways"))
+
+
 def test_windows_the_data_cannot_tell_apart_are_averaged():
     """Model averaging: the mean by the weights, an error holding both fits' errors and their spread, the
     other window's radius scaled to the same second moment, a minor speed's interval widened to hold the

@@ -22,10 +22,13 @@ from .common import parse_floats, user_errors
               help="Contact window (default: the Hertz disk against the Gaussian, chosen per record).")
 @click.option("--texture", type=click.Choice(["isotropic", "directional"]), default=None,
               help="Texture model (default: chosen per record; line textures go to the line model).")
+@click.option("--direction", type=click.Choice(["oblique", "along-x", "along-y"]), default=None,
+              help="Slip direction (default: a minor speed the data do not need is held at 0, per record).")
 @click.option("--no-resume", is_flag=True, help="Start afresh instead of skipping rows already in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line; the summary only.")
 @user_errors
-def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, window, texture, no_resume, quiet):
+def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, window, texture, direction,
+          no_resume, quiet):
     """Fit slip velocity and contact radius to every record under INPUTS (files or folders).
 
     One row per record (data-contract fields, the source file and the record index).
@@ -39,7 +42,8 @@ def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, npers
     if workers is not None and scheduler is not None:
         raise TactileInputError("give --workers or --scheduler, not both", code="bad_setting")
     known = None if velocity is None else tuple(abs(v) for v in parse_floats(velocity, 2, "velocity"))
-    options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg, window=window, texture=texture)
+    options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg, window=window, texture=texture,
+                         direction=direction and direction.replace("-", " "))
     summary = run_batch(list(inputs), out, options=options, chunk_size=chunk_size, workers=workers,
                         scheduler=scheduler, progress=not quiet, resume=not no_resume)
     t = summary.timings

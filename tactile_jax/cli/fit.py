@@ -43,6 +43,8 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
               help="Contact window (default: the Hertz disk against the Gaussian, chosen per record).")
 @click.option("--texture", type=click.Choice(["isotropic", "directional"]), default=None,
               help="Texture model (default: chosen per record; line textures go to the line model).")
+@click.option("--direction", type=click.Choice(["oblique", "along-x", "along-y"]), default=None,
+              help="Slip direction (default: a minor speed the data do not need is held at 0, per record).")
 @click.option("--ratio-only", is_flag=True,
               help="Leave out the deep probe's conditioned PSD S22.1 (fit the ratio and shallow PSD alone).")
 @click.option("--cross-pairs", "cross_pairs", type=click.IntRange(0, 2), default=None,
@@ -51,7 +53,8 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
                    "(recordings, and files from 'tactile-jax spectra'), else 0.")
 @user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
-        quiet, scene=None, model=None, window=None, texture=None, ratio_only=False, cross_pairs=None):
+        quiet, scene=None, model=None, window=None, texture=None, direction=None, ratio_only=False,
+        cross_pairs=None):
     """Fit slip velocity, contact radius and gains to recordings or spectra files; write one row per record.
 
     FILE is a recording (.h5/.hdf5/.npz with 'signals') or a spectra file (with 'omega').
@@ -86,7 +89,7 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
             need("matplotlib", "plot", "--plot")
     known = None if velocity is None else tuple(abs(v) for v in parse_floats(velocity, 2, "velocity"))
     options = FitOptions(method=method, velocity=known, fit_gain=fit_gain, noise_floor=noise_floor, solver=solver,
-                         window=window, texture=texture)
+                         window=window, texture=texture, direction=direction and direction.replace("-", " "))
     options = _scene_options(options, scene, model)
     if ratio_only:
         options = dataclasses.replace(options, conditioned=False)
@@ -144,8 +147,8 @@ def _scene_options(options, scene, model):
         from ..io.recipes import load_recipe
 
         ctx = click.get_current_context()
-        explicit = {name for name in ("method", "velocity", "fit_gain", "noise_floor", "solver", "window", "texture")
-                    if ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE}
+        explicit = {name for name in ("method", "velocity", "fit_gain", "noise_floor", "solver", "window", "texture",
+                                     "direction") if ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE}
         recipe = load_recipe(scene).options
         options = dataclasses.replace(recipe, **{name: getattr(options, name) for name in explicit})
     if model is not None:

@@ -332,7 +332,8 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
     solves where the fit has not settled; the contact window (``select.choose_window``: the Hertz fit
     against a Gaussian refit from it) unless ``options.window`` forces one; then the texture model
     (``select.choose_texture``) unless ``options.texture`` forces one; then the slip direction
-    (``select.choose_direction``: a minor speed the data do not need is held at 0). Every refit runs the
+    (``select.choose_direction``: a minor speed the data do not need is held at 0) unless
+    ``options.direction`` gives it. Every refit runs the
     program of its window from a given start."""
     warnings, notes = [], []
     s, more = settle(rec, settings, s)
@@ -363,7 +364,7 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
         notes.append(note)
     oblique = s
     s, direction, direction_margin, note = model_select.choose_direction(
-        s, lambda th, fr: settle(rec, settings, run.refit(rec, settings, th, fr))[0])
+        s, lambda th, fr: settle(rec, settings, run.refit(rec, settings, th, fr))[0], options.direction)
     notes.append(note)
     return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
                    tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique)

@@ -45,6 +45,9 @@ class FitOptions:
         does not describe the spectra and the directional one does, chosen per record and reported
         in ``FitResult.texture``), "isotropic" (Phi(|k|)) or "directional" (Phi(|k|) times a
         cos 2(theta - theta0) lobe, ``model.lines``).
+    direction: the slip direction: None (default: both speeds fitted, or a minor speed within 1.4
+        sigma of 0 held at 0, chosen per record and reported in ``FitResult.direction``),
+        "oblique" (both fitted), "along x" (vy held at 0) or "along y" (vx held at 0).
     model: the scene model (``select.MODELS``): None (default: slip and contact window,
         plus gains / noise floor as ``fit_gain`` / ``noise_floor`` say; a window the data do
         not need is reported as a lower bound on a), "slip" (window negligible), "window",
@@ -72,11 +75,14 @@ class FitOptions:
     profile_minor: bool = True
     window: str | None = None
     texture: str | None = None
+    direction: str | None = None
     model: str | None = None
     solver: str = "optimistix"
 
 
 WINDOWS = ("hertz", "gaussian")
+#: the slip directions (``select.choose_direction``)
+DIRECTIONS = ("oblique", "along x", "along y")
 
 
 def settings_of(options: FitOptions, *, has_xy: bool = True, window: str | None = None) -> Settings:
@@ -86,6 +92,9 @@ def settings_of(options: FitOptions, *, has_xy: bool = True, window: str | None 
     if window not in WINDOWS:
         raise TactileInputError(f"window must be one of {', '.join(WINDOWS)} or None, got {window!r}",
                                 code="bad_setting")
+    if options.direction not in (None,) + DIRECTIONS:
+        raise TactileInputError(f"direction must be one of {', '.join(DIRECTIONS)} or None, got "
+                                f"{options.direction!r}", code="bad_setting")
     hertz = None
     if window == "hertz":
         from ..model.hertz import hertz_table

@@ -43,6 +43,7 @@ from ..errors import TactileInputError
 from ..status import FIT_CODES, Status
 from .core import HERTZ_PER_GAUSS, POOR_FIT_REDCHI
 from .forward import PARAMS
+from .options import DIRECTIONS
 from .result import update_contact_depth
 
 __all__ = [
@@ -78,8 +79,6 @@ _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_no
 _I_ANISO = (_I["aniso_p"], _I["aniso_q"])
 #: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
 TEXTURES = ("isotropic", "directional")
-#: the slip directions: both speeds free, or the minor one held at 0 (``choose_direction``)
-DIRECTIONS = ("oblique", "along x", "along y")
 #: a minor speed below this fraction of the major one is tested against 0 (``uncertainty.profile.MINOR_PROFILE``)
 DIRECTION_TESTED = 0.3
 #: a speed held at 0 is held at this fraction of the other (the parameter is log|v|): its effect on the
@@ -304,7 +303,7 @@ def direction_name(free) -> str:
     return "along x" if vx else "along y"
 
 
-def choose_direction(summary, refit):
+def choose_direction(summary, refit, forced: str | None = None):
     """The slip direction of one record: both speeds free ("oblique"), or along an axis (the minor one held at 0).
 
     refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
@@ -314,21 +313,25 @@ def choose_direction(summary, refit):
     jackknife variance ratio, the unit of its profile intervals): the axis model is kept where holding
     the speed raises chi-square by at most 2 of that scale, i.e. where the speed is within 1.4 sigma of
     0 and a fitted value would be noise. The profile gives the held speed its 95 % upper bound.
+    forced: a direction the user gives (``FitOptions.direction``): "oblique" keeps both speeds,
+    "along x" / "along y" holds vy / vx at 0 whatever the data say (no margin).
     Returns (summary, name, margin in AIC units (the loser's minus the winner's; None where not
     tested), note).
     """
     free = np.asarray(summary.free, bool)
     iv = [_I["log_vx"], _I["log_vy"]]
-    if not _compared(summary) or not free[iv].all():
+    if forced == "oblique" or not _compared(summary) or not free[iv].all():
         return summary, direction_name(free), None, ""
     theta = np.asarray(summary.theta)
-    minor = int(np.argmin(theta[iv]))
+    minor = int(np.argmin(theta[iv])) if forced is None else int(forced == "along x")
     i, major = iv[minor], iv[1 - minor]
-    if theta[i] - theta[major] >= np.log(DIRECTION_TESTED):
+    if forced is None and theta[i] - theta[major] >= np.log(DIRECTION_TESTED):
         return summary, "oblique", None, ""
     th, fr = theta.copy(), free.copy()
     th[i], fr[i] = theta[major] + np.log(AXIS_FLOOR), False
     axis = refit(th, fr)
+    if forced is not None:
+        return axis, forced, None, f"slip {forced} (given): {'vy' if minor == 1 else 'vx'} held at 0"
     if not _compared(axis) or not np.isfinite(float(axis.chi2)):
         return summary, "oblique", None, ""
     scale = max(float(np.asarray(summary.scales)[i]), 1e-12)

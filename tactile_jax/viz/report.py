@@ -104,6 +104,8 @@ def _variable_line(result, spec, truth, free) -> str:
         if _finite(upper):      # a minor speed held at 0 (slip along an axis)
             line = (f"{_num(value * scale, 6)} (held: slip {result.direction}; 95 % upper bound "
                     f"{_num(upper * scale, 3)} {unit})")
+            if truth_txt:
+                truth_txt += f", {'inside' if t <= upper else 'above'} the bound"
         return head + line + (f"    {truth_txt}" if truth_txt else "")
     if not _finite(err):
         line = f"{_num(value * scale, 6)} +/- n/a (no error bar: {_no_error_reason(result)})"
