@@ -147,9 +147,14 @@ def test_cli_batch_exit_zero_with_failures(dataset, tmp_path, cache_dir, local_r
     src = tmp_path / "in"
     shutil.copytree(dataset, src)
     out = tmp_path / "r.csv"
-    result = CliRunner().invoke(main, ["batch", str(src), "--out", str(out), "--chunk-size", "8", "--quiet", "--window", "gaussian"])
+    result = CliRunner().invoke(main, ["batch", str(src), "--out", str(out), "--chunk-size", "8", "--quiet", "--window",
+                                       "gaussian", "--direction", "oblique"])
     assert result.exit_code == 0, result.output
     rows = read_results(out)
+    # a given slip direction: both speeds fitted on every record, no refit to choose, and the row says so
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert ok and all(r["direction"] == "oblique" and r["vy_err"] is not None for r in ok)
+    assert all("direction='oblique'" in r["options"] for r in rows)
     failed = sum(r["status"] not in ("ok", "not_converged", "poor_fit") for r in rows)
     assert f"{failed} failed" in result.output and failed == local_run[0].n_failed
     assert len(rows) == 10 and {"nonfinite", "missing_key", "bad_shape", "not_recording"} <= {r["status"] for r in rows}

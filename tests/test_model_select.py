@@ -243,6 +243,10 @@ def test_windows_the_data_cannot_tell_apart_are_averaged():
     assert res.a == pytest.approx(0.3 * 1.55e-3 + 0.7 * a_other)
     assert res["contact_depth"].value == pytest.approx(res.a ** 2 / 0.03)
     assert res["vy"].lo == 0.0 and res["vy"].hi == 0.0015      # shifted by -0.0008: lo clipped at 0, hi kept
+    held = FitResult()
+    held.set("vy", value=0.0, fixed=True, upper=0.001)
+    ms.average_windows(held, other, 0.3, "hertz")
+    assert held.vy == 0.0 and held["vy"].upper == 0.001            # a speed held at 0 stays held
 
 
 def test_window_needed_is_a_likelihood_ratio_test():

@@ -404,11 +404,11 @@ def average_windows(res, other, weight: float, window: str) -> None:
     of ``window``, each error sqrt(sum_i w_i (err_i^2 + (v_i - mean)^2)) (model averaging), and a minor
     speed's interval and bounds are widened to hold the other window's value shifted alike. The other
     window's radius enters as ``window``'s radius of the same second moment (``HERTZ_PER_GAUSS``); the
-    contact depth follows a."""
+    contact depth follows a. A fixed quantity (a known speed, or one the slip direction holds at 0) stays."""
     to_mine = HERTZ_PER_GAUSS if window == "hertz" else 1.0 / HERTZ_PER_GAUSS    # other's a -> window's a
     for q in ("vx", "vy", "a"):
         mine, theirs = res[q], other[q]
-        if mine.value is None or theirs.value is None:
+        if mine.value is None or theirs.value is None or mine.fixed:     # a held or known speed stays
             continue
         f = to_mine if q == "a" else 1.0
         v0, e0 = mine.value, mine.err or 0.0
