@@ -347,7 +347,7 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
     if options.window is None and settings.hertz is not None:
         gauss = settings._replace(hertz=None)
         s, choice, window_margin, note, other, weight = model_select.choose_window(
-            s, lambda th, fr: settle(rec, gauss, run.refit(rec, gauss, th, fr))[0], bin_factor=bin_factor)
+            s, _settled_refit(rec, gauss), bin_factor=bin_factor)
         if choice == "gaussian":
             settings, window = gauss, "gaussian"
             warnings = []                       # the Hertz fit's settling is not this result's
@@ -363,11 +363,16 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
                                                                        bin_factor=bin_factor)
         notes.append(note)
     oblique = s
-    s, direction, direction_margin, note = model_select.choose_direction(
-        s, lambda th, fr: settle(rec, settings, run.refit(rec, settings, th, fr))[0], options.direction)
+    s, direction, direction_margin, note = model_select.choose_direction(s, _settled_refit(rec, settings),
+                                                                         options.direction)
     notes.append(note)
     return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
                    tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique)
+
+
+def _settled_refit(rec: Record, settings: Settings):
+    """refit(theta, free) -> the program of ``settings`` from ``theta``, with more solves where it has not settled."""
+    return lambda theta, free: settle(rec, settings, run.refit(rec, settings, theta, free))[0]
 
 
 def averaged(res: FitResult, refined: Refined, *, velocity=None, curvature_radius=None) -> FitResult:

@@ -329,14 +329,14 @@ def choose_direction(summary, refit, forced: str | None = None):
         return summary, "oblique", None, ""
     th, fr = theta.copy(), free.copy()
     th[i], fr[i] = theta[major] + np.log(AXIS_FLOOR), False
+    name, q = direction_name(fr), "vy" if minor == 1 else "vx"
     axis = refit(th, fr)
     if forced is not None:
-        return axis, forced, None, f"slip {forced} (given): {'vy' if minor == 1 else 'vx'} held at 0"
+        return axis, forced, None, f"slip {forced} (given): {q} held at 0"
     if not _compared(axis) or not np.isfinite(float(axis.chi2)):
         return summary, "oblique", None, ""
     scale = max(float(np.asarray(summary.scales)[i]), 1e-12)
     margin = 2.0 - (float(axis.chi2) - float(summary.chi2)) / scale      # AIC(oblique) - AIC(axis)
-    name, q = direction_name(fr), "vy" if minor == 1 else "vx"
     if margin >= 0.0:
         return axis, name, margin, (f"slip {name}: {q} held at 0 (AIC margin {margin:.1f} over a fitted {q}, "
                                     f"in units of its error scale: the data do not need it)")

@@ -98,15 +98,15 @@ def _variable_line(result, spec, truth, free) -> str:
 
     if not _finite(value):
         return head + _undetermined(result, attr, scale, unit, t)
+    upper = getattr(result, f"{attr}_upper", None) if attr in ("vx", "vy") else None
+    # against a speed's 95 % bound, the truth is placed inside or above it (never a deviation in sigma)
+    bound_txt = (f"    {truth_txt}, {'inside' if t <= upper else 'above'} the bound"
+                 if truth_txt and _finite(upper) else "")
     if fixed:
-        upper = getattr(result, f"{attr}_upper", None) if attr in ("vx", "vy") else None
-        line = f"{_num(value * scale, 6)} (fixed)"
         if _finite(upper):      # a minor speed held at 0 (slip along an axis)
-            line = (f"{_num(value * scale, 6)} (held: slip {result.direction}; 95 % upper bound "
-                    f"{_num(upper * scale, 3)} {unit})")
-            if truth_txt:
-                truth_txt += f", {'inside' if t <= upper else 'above'} the bound"
-        return head + line + (f"    {truth_txt}" if truth_txt else "")
+            return head + (f"{_num(value * scale, 6)} (held: slip {result.direction}; 95 % upper bound "
+                           f"{_num(upper * scale, 3)} {unit})") + bound_txt
+        return head + f"{_num(value * scale, 6)} (fixed)" + (f"    {truth_txt}" if truth_txt else "")
     if not _finite(err):
         line = f"{_num(value * scale, 6)} +/- n/a (no error bar: {_no_error_reason(result)})"
         return head + line + (f"    {truth_txt}" if truth_txt else "")
@@ -114,13 +114,10 @@ def _variable_line(result, spec, truth, free) -> str:
     rel = 100 * err / abs(value) if value != 0 else math.inf
     rel = f"({rel:.2f} %)" if rel < 1000 else (f"({rel:.3g} %)" if math.isfinite(rel) else "(n/a %)")
     line = f"{v_txt} +/- {e_txt} {rel}"
-    upper = getattr(result, f"{attr}_upper", None) if attr in ("vx", "vy") else None
     if _finite(upper):
         # the profile bound, not the Laplace sigma, is what this component's error means: the truth is
         # placed against the bound, so that a deviation in sigma never sits beside "consistent with 0"
-        line += f"  (consistent with 0, 95 % upper bound {_num(upper * scale, 3)} {unit})"
-        if truth_txt:
-            line += f"    {truth_txt}, {'inside' if t <= upper else 'above'} the bound"
+        line += f"  (consistent with 0, 95 % upper bound {_num(upper * scale, 3)} {unit})" + bound_txt
     elif truth_txt:
         dev = (value - t) / err if err > 0 else math.nan
         line += f"    {truth_txt}, {dev:+.2f} sigma" if math.isfinite(dev) else f"    {truth_txt}"
