@@ -7,6 +7,7 @@ import pytest
 
 from tactile_jax.model.cross_pair import _solve_small
 from tactile_jax.spectral import band as band_mod
+from tactile_jax.model.hertz import hertz_table
 from tactile_jax.model import lines
 from tactile_jax.inference.forward import _to_half_bins
 from tactile_jax.inference.run import resolution_want
@@ -58,15 +59,32 @@ def test_segments_refuse_what_a_record_cannot_meet():
 ISO = jnp.zeros(2)
 
 
-def _matrix_program(n_nodes):
-    """log_matrix at ``n_nodes`` per panel, compiled once for every (p, omega)."""
-    old = lines.N_NODES
-    lines.N_NODES = n_nodes
+def _matrix_program(n_nodes, window="gaussian"):
+    """log_matrix at ``n_nodes`` per panel under ``window``, compiled once for every (p, omega)."""
+    name = "N_NODES" if window == "gaussian" else "N_NODES_HERTZ"
+    old = getattr(lines, name)
+    setattr(lines, name, n_nodes)
     try:
-        f = jax.jit(lambda p, omega: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS)[0])
-        return f.lower(jnp.ones(3), jnp.ones(62)).compile()      # traced here, at n_nodes
+        if window == "gaussian":
+            f = jax.jit(lambda p, omega: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS)[0])
+            return f.lower(jnp.ones(3), jnp.ones(62)).compile()      # traced here, at n_nodes
+        coef = hertz_table().coef
+        f = jax.jit(lambda p, omega, c: lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS, 1, c)[0])
+        compiled = f.lower(jnp.ones(3), jnp.ones(119), coef).compile()
+        return lambda p, omega: compiled(p, omega, coef)
     finally:
-        lines.N_NODES = old
+        setattr(lines, name, old)
+
+
+def _quadrature_error(fine, used, p, omega):
+    """|used / fine - 1| of each entry relative to its power with a white floor 50 dB below each pair's peak."""
+    ref = np.asarray(fine(jnp.array(p), omega))
+    got = np.asarray(used(jnp.array(p), omega))
+    diag = ref[[0, 2, 3, 5]]
+    floor = np.repeat(diag[[0, 2]].max(axis=1, keepdims=True), 2, axis=0) - np.log(1e5)
+    total = np.logaddexp(diag, floor)
+    scale = np.array([0.5 * (total[i] + total[j]) for i, j in lines.ENTRIES])
+    return np.abs(np.exp(got - ref) - 1.0) * np.exp(ref - scale)
 
 
 def test_slip_along_x_through_a_large_contact_gives_the_exact_r_curve():
@@ -89,14 +107,19 @@ def test_the_quadrature_is_converged_where_the_spectra_are_above_the_noise():
     fine, used = _matrix_program(48), _matrix_program(lines.N_NODES)
     for p in ([0.016, 0.011, 1.5e-3], [0.03, 0.002, 0.9e-3], [0.02, 0.02, 6e-3]):
         omega = jnp.arange(62) * 0.15 * p[0] / (D2 - D1)
-        ref = np.asarray(fine(jnp.array(p), omega))
-        got = np.asarray(used(jnp.array(p), omega))
-        diag = ref[[0, 2, 3, 5]]
-        floor = np.repeat(diag[[0, 2]].max(axis=1, keepdims=True), 2, axis=0) - np.log(1e5)
-        total = np.logaddexp(diag, floor)
-        scale = np.array([0.5 * (total[i] + total[j]) for i, j in lines.ENTRIES])
-        err = np.abs(np.exp(got - ref) - 1.0) * np.exp(ref - scale)
+        err = _quadrature_error(fine, used, p, omega)
         assert err.max() < 2e-2 and np.median(err) < 1e-4, p
+
+
+@pytest.mark.slow
+def test_the_hertz_quadrature_is_converged_where_the_spectra_are_above_the_noise():
+    """The Hertz window's nodes per panel against 96 on its half-bin grid (oblique, along x, small and large
+    contacts), by the Gaussian window's measure; the rule with 12 nodes would not pass."""
+    fine, used = _matrix_program(96, "hertz"), _matrix_program(lines.N_NODES_HERTZ, "hertz")
+    for p in ([0.016, 0.011, 1.5e-3], [0.03, 0.002, 0.9e-3], [0.02, 0.02, 3e-3], [0.04, 0.0, 2.2e-3]):
+        omega = jnp.arange(119) * 0.075 * p[0] / (D2 - D1) + 10.0
+        err = _quadrature_error(fine, used, p, omega)
+        assert err.max() < 2e-3 and np.median(err) < 2e-5, p
 
 
 def test_the_custom_jacobian_matches_finite_differences():
@@ -155,6 +178,15 @@ def test_the_solver_keeps_the_best_start_and_holds_the_first_stage_mask():
     theta, *_ = levenberg_marquardt(_toy, jnp.array([[3.0, 0.0]]), x, free, jnp.array([False, True]), n_start=4,
                                     n_first=4, n_final=0)
     assert float(theta[0]) == 3.0 and float(theta[1]) == pytest.approx(0.5, abs=1e-6)
+    # each start's end (what the Hertz window's exploration picks from): the basins apart, each end a descent
+    theta, *_, ends = levenberg_marquardt(_toy, starts, x, free, jnp.array([False, True]), n_start=8, n_first=2,
+                                          n_final=0, ends=True)
+    ends = np.asarray(ends)
+    assert ends.shape == (3, 2) and np.allclose(ends[1], [3.0, 0.5], atol=1e-3)
+    assert abs(ends[0, 0] - 3.0) > 0.3 and abs(ends[2, 0] - 3.0) > 0.3
+    cost = [float(np.sum(np.square(_toy(jnp.asarray(e), x)[0]))) for e in ends]
+    assert np.allclose(np.asarray(theta), ends[int(np.argmin(cost))])
+    assert all(c <= float(np.sum(np.square(_toy(s0, x)[0]))) for c, s0 in zip(cost, starts))
 
 
 def test_resolution_rules():

@@ -30,11 +30,12 @@ __all__ = ["levenberg_marquardt"]
 
 
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first: int, n_final: int,
-                        skip_starts=False, lam0=1e-3, max_step=1.0):
+                        skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. skip_starts: (traced) go straight to the final iterations from
-    ``starts[0]``. Returns theta (P,), r, the Jacobian of r (R, P) and aux at theta.
+    ``starts[0]``. Returns theta (P,), r, the Jacobian of r (R, P) and aux at theta; with ``ends``, also
+    where each start ended (S, P) (non-finite ones as they are).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
@@ -50,7 +51,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
     def body(i, carry):
-        state, best = carry
+        state, best, last = carry
         theta, r, jac, aux, cost, lam, nu = state
         k = i + offset                                   # the schedule's step
         exploring = k < explore
@@ -59,6 +60,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first
         fresh = (i == 0) | (exploring & (local == 0)) | (k == explore)
         ended = (k > 0) & (k <= explore) & (local == 0) & (cost < best[4])     # a start ends, lowest so far
         best = jax.tree.map(lambda b, s: jnp.where(ended, s, b), best, state[:5])
+        j = jnp.clip(k // n_start - 1, 0, n_starts - 1)                              # the start that ends at k
+        last = last.at[j].set(jnp.where((k > 0) & (k <= explore) & (local == 0), state[0], last[j]))
         restart = jnp.where(k == explore, best[0], starts[jnp.minimum(k // n_start, n_starts - 1)])
         mask = jnp.where(exploring & (local < n_first), first, free)
         jm = jac * mask
@@ -77,7 +80,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first
         take = ok | fresh
         new = jax.tree.map(lambda a, b: jnp.where(take, a, b), (trial, r_t, j_t, aux_t, cost_t),
                            (theta, r, jac, aux, cost))
-        return (*new, lam, nu), best
+        return (*new, lam, nu), best, last
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
     dtype = starts.dtype
@@ -87,5 +90,5 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first
              jnp.asarray(2.0, dtype))
     best = state[:5]
     n_total = jnp.where(skip_starts, n_final, explore + n_final)
-    (theta, r, jac, aux, _, _, _), _ = jax.lax.fori_loop(0, n_total + 1, body, (state, best))
-    return theta, r, jac, aux
+    (theta, r, jac, aux, _, _, _), _, last = jax.lax.fori_loop(0, n_total + 1, body, (state, best, starts))
+    return (theta, r, jac, aux, last) if ends else (theta, r, jac, aux)
