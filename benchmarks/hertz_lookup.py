@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import argparse
 import platform
-import sys
 import time
-from pathlib import Path
 
 import jax
 
@@ -30,8 +28,6 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import tactile_jax as tj  # noqa: E402
 from tactile_jax.inference import run  # noqa: E402
@@ -82,8 +78,8 @@ def main(argv=None) -> None:
             p = jnp.exp(theta[:3])
             d = prep.data.depths
 
-            def nodes(p, c):        # traced anew by each jax.jit: hertz.CHUNK is read when tracing
-                return lines._nodes(p, prep.data.grid_abs, d[0], d[1], 1, c)
+            def nodes(p, c, grid=prep.data.grid_abs, d=d):   # traced anew by each jax.jit (CHUNK is read then)
+                return lines._nodes(p, grid, d[0], d[1], 1, c)
 
             n_nodes = int(np.prod(nodes(p, settings.hertz)[2].shape))
             chunked = median_ms(jax.jit(nodes), p, settings.hertz, repeats=args.repeats)

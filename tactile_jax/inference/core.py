@@ -237,6 +237,7 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     k1 = jnp.maximum(dof - 1.0, 1.0)
     # the prewhitening filters on the half-bin grid of the kernel and at the bins
     offsets = half_offsets()
+    gauss_grid = jnp.abs(d_omega * (i0 + jnp.asarray(grid_offsets())))       # the Gaussian window's density grid
     half = d_omega * (i0 + offsets)
     resp_h = filter_response(seg.whitening, half, seg.fs)
     resp_b = filter_response(seg.whitening, om, seg.fs)
@@ -295,8 +296,7 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     # a fixed parameter's prior residual is constant; the angular factor's prior stays on for a refit that frees it
     prior_inv_sd = jnp.where(free | aniso, prior_inv_sd, 0.0)
     data = JointData(
-        meas=meas, omega=om, grid_abs=jnp.abs(d_omega * (i0 + jnp.asarray(
-            grid_offsets() if settings.hertz is None else offsets))),
+        meas=meas, omega=om, grid_abs=gauss_grid if settings.hertz is None else jnp.abs(d_omega * (i0 + offsets)),
         log_kernel=data_kernel,
         white_half=jnp.log(jnp.abs(resp_h) ** 2), white_bin=jnp.log(jnp.abs(resp_b) ** 2),
         xy_white_half=jnp.conj(resp_h[0]) * resp_h[1], xy_white_bin=jnp.conj(resp_b[0]) * resp_b[1],
@@ -318,7 +318,6 @@ def prepare(record: Record, settings: Settings) -> Prepared:
         return theta0.at[iv].set(lv).at[N_PHYS:].set(texture_start(jnp.exp(lv[axis]), axis))
 
     stage1 = free & ((idx >= N_PHYS) | (idx == i["log_ay"]))          # the texture and the y level, physics held
-    gauss_grid = jnp.abs(d_omega * (i0 + jnp.asarray(grid_offsets())))
     return Prepared(data, jax.vmap(start)(starts), free, stage1, b, gauss_grid)
 
 

@@ -58,10 +58,10 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first
         local = k % n_start
         # a new start: evaluate it afresh; the end of the starts: go on from the best
         fresh = (i == 0) | (exploring & (local == 0)) | (k == explore)
-        ended = (k > 0) & (k <= explore) & (local == 0) & (cost < best[4])     # a start ends, lowest so far
-        best = jax.tree.map(lambda b, s: jnp.where(ended, s, b), best, state[:5])
+        ended = (k > 0) & (k <= explore) & (local == 0)                              # a start ends here
+        best = jax.tree.map(lambda b, s: jnp.where(ended & (cost < best[4]), s, b), best, state[:5])
         j = jnp.clip(k // n_start - 1, 0, n_starts - 1)                              # the start that ends at k
-        last = last.at[j].set(jnp.where((k > 0) & (k <= explore) & (local == 0), state[0], last[j]))
+        last = last.at[j].set(jnp.where(ended, state[0], last[j]))
         restart = jnp.where(k == explore, best[0], starts[jnp.minimum(k // n_start, n_starts - 1)])
         mask = jnp.where(exploring & (local < n_first), first, free)
         jm = jac * mask
