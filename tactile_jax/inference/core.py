@@ -12,9 +12,11 @@
    the shallow spectrum;
 4. each start: the texture alone with the physics held, then every parameter; the lowest
    cost goes on (``solve.levenberg_marquardt``: one loop of fixed iterations, no
-   data-dependent control flow, so records vmap side by side). Under the Hertz window the
-   starts are explored under the Gaussian one and the end of lowest Hertz cost goes on
-   (``explore``): the same answers after ``fit``'s layers, at a third of the time;
+   data-dependent control flow, so records vmap side by side). The Hertz window goes on
+   from the Gaussian program's ends of its five starts, the one of lowest Hertz cost
+   (``Start``, ``run.fit_one``): the Hertz program explores its own starts only when given
+   none, as a Gaussian iteration costs a third of a Hertz one, and the Hertz program holds
+   no Gaussian model to compile;
 5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
    through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
    other parameters the three pooled, none below the reduced chi-square;
@@ -50,7 +52,8 @@ from .solve import levenberg_marquardt
 from ..spectral.segments import KERNEL_OFFSETS, Segments
 from ..model.spline import log_phi_at
 
-__all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "prepare",
+__all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "start_at",
+           "candidates", "scouting", "prepare",
            "finish", "N_KNOTS", "ITERATIONS"]
 
 #: integer status codes of ``Summary.status``
@@ -58,6 +61,9 @@ STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
 N_KNOTS = 12
 #: fixed iterations: per start on the texture alone, per start in all, then from the best start
 ITERATIONS = (3, 7, 18)
+#: the speed starts of ``prepare`` (step 3 of the module), and how many of them each window's program explores
+N_STARTS = 5
+OWN_STARTS = {"gaussian": 3, "hertz": 5}
 POOR_FIT_REDCHI = 2.0
 #: a stop counts as converged when a full Gauss-Newton step would lower chi2 by less than this...
 DECREMENT_TOL = 1e-2
@@ -123,7 +129,8 @@ class Summary(NamedTuple):
     into ``STATUS``. n_bins: usable bins fitted. located: ``Located``. jackknife: whether the
     scales came from the jackknife. model: ``model.ModelSpectra`` at theta. jac: (R, P) the
     residuals' Jacobian there. texture: (3, 2, L) the texture cross-sections of Eq. 18 / 19 along x and y
-    (``texture_sections``). data: the ``JointData`` (for what ``fit`` layers on top).
+    (``texture_sections``). data: the ``JointData`` (for what ``fit`` layers on top). ends:
+    (``N_STARTS``, P) where each start's exploration ended (``Start``; a start not explored as it began).
     """
 
     theta: jax.Array
@@ -148,6 +155,7 @@ class Summary(NamedTuple):
     jac: jax.Array
     texture: jax.Array
     data: JointData
+    ends: jax.Array | None = None
 
 
 def _window(x, i0):
@@ -195,16 +203,14 @@ def _pair_fits(om, log_ratio, err, band, depths, log_gains, speed0, a0, log_kern
 
 
 class Prepared(NamedTuple):
-    """``prepare``'s output: data (``JointData``), starts (S, P) parameter vectors, free (P,) the fitted
-    parameters, first (P,) those of the texture-only iterations, band (``band.Band``), grid_abs (F,) the
-    integer grid of the Gaussian window's densities (``explore``)."""
+    """``prepare``'s output: data (``JointData``), starts (``N_STARTS``, P) parameter vectors, free (P,) the
+    fitted parameters, first (P,) those of the texture-only iterations, band (``band.Band``)."""
 
     data: JointData
     starts: jax.Array
     free: jax.Array
     first: jax.Array
     band: band_mod.Band
-    grid_abs: jax.Array
 
 
 def prepare(record: Record, settings: Settings) -> Prepared:
@@ -237,7 +243,6 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     k1 = jnp.maximum(dof - 1.0, 1.0)
     # the prewhitening filters on the half-bin grid of the kernel and at the bins
     offsets = half_offsets()
-    gauss_grid = jnp.abs(d_omega * (i0 + jnp.asarray(grid_offsets())))       # the Gaussian window's density grid
     half = d_omega * (i0 + offsets)
     resp_h = filter_response(seg.whitening, half, seg.fs)
     resp_b = filter_response(seg.whitening, om, seg.fs)
@@ -296,7 +301,8 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     # a fixed parameter's prior residual is constant; the angular factor's prior stays on for a refit that frees it
     prior_inv_sd = jnp.where(free | aniso, prior_inv_sd, 0.0)
     data = JointData(
-        meas=meas, omega=om, grid_abs=gauss_grid if settings.hertz is None else jnp.abs(d_omega * (i0 + offsets)),
+        meas=meas, omega=om,
+        grid_abs=jnp.abs(d_omega * (i0 + (jnp.asarray(grid_offsets()) if settings.hertz is None else offsets))),
         log_kernel=data_kernel,
         white_half=jnp.log(jnp.abs(resp_h) ** 2), white_bin=jnp.log(jnp.abs(resp_b) ** 2),
         xy_white_half=jnp.conj(resp_h[0]) * resp_h[1], xy_white_bin=jnp.conj(resp_b[0]) * resp_b[1],
@@ -306,10 +312,9 @@ def prepare(record: Record, settings: Settings) -> Prepared:
         xy_c_weight=jnp.sqrt(k_xy), xy_c_offset=digamma(k_xy) - digamma(dof), log_noise=noise,
         prior_center=theta0, prior_inv_sd=prior_inv_sd, smooth_inv_sd=1.0 / jnp.asarray(settings.smoothness))
     # speed starts: as found, and each axis in turn as the major one at its own pair's speed, the other at
-    # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it); with
-    # the Hertz window, whose sharp edge leaks more, also each axis with the other at 0.01 of it
-    minors = (0.15, 0.01) if settings.hertz is not None else (0.15,)
-    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(f * v0[m])) for f in minors for m in (0, 1)]
+    # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it); then
+    # each axis with the other at 0.01 of it, which the Hertz window, whose sharp edge leaks more, explores too
+    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(f * v0[m])) for f in (0.15, 0.01) for m in (0, 1)]
     iv = jnp.array([i["log_vx"], i["log_vy"]])
     starts = jnp.stack([theta0[iv]] + [jnp.where(known, theta0[iv], s) for s in alt])
 
@@ -318,7 +323,7 @@ def prepare(record: Record, settings: Settings) -> Prepared:
         return theta0.at[iv].set(lv).at[N_PHYS:].set(texture_start(jnp.exp(lv[axis]), axis))
 
     stage1 = free & ((idx >= N_PHYS) | (idx == i["log_ay"]))          # the texture and the y level, physics held
-    return Prepared(data, jax.vmap(start)(starts), free, stage1, b, gauss_grid)
+    return Prepared(data, jax.vmap(start)(starts), free, stage1, b)
 
 
 def statistics(theta, r, jac, free):
@@ -379,62 +384,66 @@ def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi, he
 
 
 class Start(NamedTuple):
-    """Where ``core`` starts its final solve: with ``use``, from ``theta`` (P,) over ``free`` (P,) instead of
-    the best of its own starts (a refit: a profile point, another model, more iterations)."""
+    """Where ``core`` starts its final solve.
+
+    use: from ``theta`` (``N_STARTS``, P) over ``free`` (P,) instead of exploring the program's own starts:
+    from the first row, or, of the first ``n`` rows, from the one of lowest cost under the program's window
+    (a refit: ``start_at``; the Hertz window from the Gaussian program's ends: ``candidates``). scout:
+    explore all ``N_STARTS`` of the program's own starts and stop at their ends (``Summary.ends``), with no
+    final iterations (``scouting``).
+    """
 
     theta: jax.Array
     free: jax.Array
     use: jax.Array
+    n: jax.Array
+    scout: jax.Array
 
 
 def no_start(n_params: int = N_PHYS + N_KNOTS) -> Start:
-    """The ``Start`` that lets ``core`` choose its own."""
-    return Start(np.zeros(n_params), np.zeros(n_params, bool), np.asarray(False))
+    """The ``Start`` that lets ``core`` explore its own starts."""
+    return Start(np.zeros((N_STARTS, n_params)), np.zeros(n_params, bool), np.asarray(False), np.asarray(1),
+                 np.asarray(False))
 
 
-def explore(prep: Prepared, free, hertz) -> jax.Array:
-    """The Hertz window's start (P,): each of ``prep``'s starts explored under the Gaussian window (the disk's
-    radius as the Gaussian radius of the same second moment; its densities on the integer grid, as in that
-    window's own program, at a third or less of the Hertz window's cost per iteration), and of their ends
-    the one of lowest Hertz cost, its radius the disk's again. The Hertz iterations go on from there."""
-    shift = jnp.zeros(prep.starts.shape[-1]).at[INDEX["log_a"]].set(jnp.log(HERTZ_PER_GAUSS))
-    data = prep.data._replace(grid_abs=prep.grid_abs, prior_center=prep.data.prior_center - shift)
-    n_first, n_start, _ = ITERATIONS
-    *_, ends = levenberg_marquardt(residuals_and_model, prep.starts - shift, (data, None), free, prep.first,
-                                   n_start=n_start, n_first=n_first, n_final=0, ends=True)
-    ends = ends + shift
+def start_at(theta, free) -> Start:
+    """Refit from ``theta`` (P,) over ``free`` (P,)."""
+    theta = np.asarray(theta, float)
+    return Start(np.broadcast_to(theta, (N_STARTS,) + theta.shape).copy(), np.asarray(free, bool),
+                 np.asarray(True), np.asarray(1), np.asarray(False))
 
-    def cost(theta):
-        c = jnp.sum(jnp.square(residuals_and_model(theta, (prep.data, hertz))[0]))
-        return jnp.where(jnp.isfinite(c) & jnp.all(jnp.isfinite(theta)), c, jnp.inf)
 
-    costs = lax.map(cost, ends)
-    return ends[jnp.argmin(costs)]
+def candidates(thetas, free) -> Start:
+    """Go on from the one of ``thetas`` (``N_STARTS``, P) of lowest cost, over ``free`` (P,)."""
+    return Start(np.asarray(thetas, float), np.asarray(free, bool), np.asarray(True),
+                 np.asarray(np.shape(thetas)[0]), np.asarray(False))
+
+
+def scouting(n_params: int = N_PHYS + N_KNOTS) -> Start:
+    """The ``Start`` that explores every one of the program's starts and returns their ends."""
+    return no_start(n_params)._replace(scout=np.asarray(True))
 
 
 def core(record: Record, settings: Settings, start: Start | None = None) -> Summary:
     """The joint fit of one record (see the module). Pure jnp, fixed shapes: jit and vmap freely.
 
-    start: a ``Start`` to refit from (``fit``'s extras run through this same program), or None.
+    start: a ``Start`` (None: ``no_start()``); ``fit``'s extras run through this same program from one.
     """
     prep = prepare(record, settings)
     b = prep.band
-    starts, free, skip = prep.starts, prep.free, False
-    if start is not None:
-        starts = jnp.where(start.use, jnp.broadcast_to(start.theta.astype(starts.dtype), starts.shape), starts)
-        free = jnp.where(start.use, start.free, free)
-        skip = start.use
+    start = no_start() if start is None else start
+    free = jnp.where(start.use, start.free, prep.free)
     n_first, n_start, n_final = ITERATIONS
-    if settings.hertz is not None:          # the starts explored under the Gaussian window, unless a refit's is given
-        given = starts[:1]
-        explored = lambda: explore(prep, free, settings.hertz)[None]                    # noqa: E731
-        starts = explored() if start is None else lax.cond(skip, lambda: given, explored)
-        skip = True
-    theta, r, jac, model = levenberg_marquardt(residuals_and_model, starts, (prep.data, settings.hertz), free,
-                                               prep.first,
-                                               n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip)
+    # candidates are the starts, each only evaluated (the loop's own evaluation: no second program to compile)
+    pick = start.use & (start.n > 1)
+    theta, r, jac, model, ends = levenberg_marquardt(
+        residuals_and_model, jnp.where(start.use, start.theta.astype(prep.starts.dtype), prep.starts),
+        (prep.data, settings.hertz), free, prep.first, n_start=jnp.where(pick, 1, n_start), n_first=n_first,
+        n_final=jnp.where(start.scout, 0, n_final),
+        n_explore=jnp.where(start.scout, N_STARTS, jnp.where(pick, start.n, OWN_STARTS[settings.window])),
+        skip_starts=start.use & ~pick, ends=True)
     return finish(record, prep.data, free, Located(b.i0, b.n_leak, b.k0, b.speed0), theta, r, jac, model,
-                  settings.hertz)
+                  settings.hertz)._replace(ends=ends)
 
 
 class Located(NamedTuple):

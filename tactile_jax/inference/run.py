@@ -20,7 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..spectral import band as band_mod
-from .core import ITERATIONS as ITERATIONS, Located, Record, Settings, Start, Summary, core, no_start
+from .core import (HERTZ_PER_GAUSS, ITERATIONS as ITERATIONS, INDEX, Located, Record, Settings, Start, Summary,
+                   candidates, core, no_start, scouting, start_at)
 from .data import JointData, Measured
 from .forward import ModelSpectra
 from ..spectral.segments import Segments, from_spectra, segments
@@ -42,8 +43,8 @@ def _locate(rec: Record, settings: Settings):
     return b.speed0, b.n_band
 
 
-def _core_many(recs: Record, settings: Settings) -> Summary:
-    return jax.vmap(core, in_axes=(0, None))(recs, settings)
+def _core_many(recs: Record, settings: Settings, starts: Start) -> Summary:
+    return jax.vmap(core, in_axes=(0, None, 0))(recs, settings, starts)
 
 
 @functools.cache
@@ -188,10 +189,22 @@ def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, xy=None, 
     return _record(seg, depths, gains, velocity)
 
 
+def _hertz_start(ends, free) -> Start:
+    """The Hertz program's ``Start``: the Gaussian program's ends (``N_STARTS``, P), each radius scaled to
+    the Hertz disk of the same second moment, to go on from the one of lowest Hertz cost."""
+    ends = np.array(ends, float)
+    ends[:, INDEX["log_a"]] += np.log(HERTZ_PER_GAUSS)
+    return candidates(ends, free)
+
+
 def fit_one(rec: Record, settings: Settings, start: Start | None = None) -> Summary:
-    """``core`` on one record (numpy in, a ``Summary`` of numpy arrays out); ``start``: refit from there."""
-    start = no_start() if start is None else start
-    out = _programs()["core"](_as_jnp(rec), settings, _as_jnp(start))
+    """``core`` on one record (numpy in, a ``Summary`` of numpy arrays out); ``start``: refit from there.
+    With no start, the Hertz window goes on from the Gaussian program's scouting of its starts (``core``)."""
+    program, rec_j = _programs()["core"], _as_jnp(rec)
+    if start is None and settings.hertz is not None:
+        scout = program(rec_j, settings._replace(hertz=None), _as_jnp(scouting()))
+        start = _hertz_start(scout.ends, scout.free)
+    out = program(rec_j, settings, _as_jnp(no_start() if start is None else start))
     return jax.tree.map(np.asarray, out)
 
 
@@ -210,12 +223,19 @@ def fit_many(recs: list[Record], settings: Settings, size: int | None = None, *,
         return [fit_one(r, settings) for r in recs]
     n = len(recs)
     size = max(size or n, n)
-    stacked = jax.tree.map(lambda *x: np.stack(x), *(recs + [recs[0]] * (size - n)))
-    out = _programs()["core_many"](_as_jnp(stacked), settings)
+    stacked = _as_jnp(jax.tree.map(lambda *x: np.stack(x), *(recs + [recs[0]] * (size - n))))
+    program = _programs()["core_many"]
+    many = lambda start: _as_jnp(jax.tree.map(lambda x: np.stack([x] * size), start))       # noqa: E731
+    starts = many(no_start())
+    if settings.hertz is not None:
+        scout = jax.tree.map(np.asarray, program(stacked, settings._replace(hertz=None), many(scouting())))
+        hertz = [_hertz_start(e, f) for e, f in zip(scout.ends, scout.free)]
+        starts = _as_jnp(jax.tree.map(lambda *x: np.stack(x), *hertz))
+    out = program(stacked, settings, starts)
     out = jax.tree.map(np.asarray, out)
     return [jax.tree.map(lambda x, i=i: x[i], out) for i in range(n)]
 
 
 def refit(rec: Record, settings: Settings, theta, free) -> Summary:
     """The same program from ``theta`` over ``free`` (what ``fit`` layers its extras on)."""
-    return fit_one(rec, settings, Start(np.asarray(theta, float), np.asarray(free, bool), np.asarray(True)))
+    return fit_one(rec, settings, start_at(theta, free))

@@ -29,17 +29,19 @@ from .gauss_newton import damped_step
 __all__ = ["levenberg_marquardt"]
 
 
-def levenberg_marquardt(fun, starts, args, free, first, *, n_start: int, n_first: int, n_final: int,
-                        skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False):
+def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
+                        n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
-    free, first: (P,) bool. skip_starts: (traced) go straight to the final iterations from
-    ``starts[0]``. Returns theta (P,), r, the Jacobian of r (R, P) and aux at theta; with ``ends``, also
-    where each start ended (S, P) (non-finite ones as they are).
+    free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
+    all); n_start and n_final may be traced too (n_start 1: each start is only evaluated, and the final
+    iterations go on from the one of lowest cost). skip_starts: (traced) go straight to the final
+    iterations from ``starts[0]``. Returns theta (P,), r, the Jacobian of r (R, P) and aux at theta; with ``ends``, also
+    where each start ended (S, P) (non-finite ones as they are; a start not explored as it was given).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
-    explore = n_starts * n_start
+    explore = n_start * (n_starts if n_explore is None else n_explore)
     offset = jnp.where(skip_starts, explore, 0)
 
     def value_and_jac(theta):
