@@ -186,12 +186,13 @@ def _stage_programs():
     def solve(prep, start):
         starts, free, skip = prep.starts, prep.free, False
         if start is not None:
-            starts = jnp.where(start.use, jnp.broadcast_to(start.theta.astype(starts.dtype), starts.shape), starts)
+            starts = jnp.where(start.use, start.theta.astype(starts.dtype), starts)
             free = jnp.where(start.use, start.free, free)
             skip = start.use
         n_first, n_start, n_final = core_mod.ITERATIONS
         out = levenberg_marquardt(core_mod.residuals_and_model, starts, (prep.data, None), free, prep.first,
-                                  n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip)
+                                  n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip,
+                                  n_explore=core_mod.OWN_STARTS["gaussian"])
         return out, free
 
     def finish(rec, prep, free, out):
