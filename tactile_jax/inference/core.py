@@ -34,7 +34,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 from jax.scipy.special import digamma
 
 from .._numerics import tiny
@@ -414,9 +413,12 @@ def start_at(theta, free) -> Start:
 
 
 def candidates(thetas, free) -> Start:
-    """Go on from the one of ``thetas`` (``N_STARTS``, P) of lowest cost, over ``free`` (P,)."""
-    return Start(np.asarray(thetas, float), np.asarray(free, bool), np.asarray(True),
-                 np.asarray(np.shape(thetas)[0]), np.asarray(False))
+    """Go on from the one of ``thetas`` (..., ``N_STARTS``, P) of lowest cost, over ``free`` (..., P); leading
+    axes batch records (a vmapped ``core``)."""
+    thetas = np.asarray(thetas, float)
+    batch = thetas.shape[:-2]
+    return Start(thetas, np.asarray(free, bool), np.full(batch, True), np.full(batch, thetas.shape[-2]),
+                 np.full(batch, False))
 
 
 def scouting(n_params: int = N_PHYS + N_KNOTS) -> Start:

@@ -189,12 +189,18 @@ def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, xy=None, 
     return _record(seg, depths, gains, velocity)
 
 
-def _hertz_start(ends, free) -> Start:
-    """The Hertz program's ``Start``: the Gaussian program's ends (``N_STARTS``, P), each radius scaled to
-    the Hertz disk of the same second moment, to go on from the one of lowest Hertz cost."""
-    ends = np.array(ends, float)
-    ends[:, INDEX["log_a"]] += np.log(HERTZ_PER_GAUSS)
-    return candidates(ends, free)
+def _stack(trees):
+    """Pytrees of one structure and shape -> one pytree with a leading axis (numpy)."""
+    return jax.tree.map(lambda *x: np.stack(x), *trees)
+
+
+def _hertz_start(scout: Summary) -> Start:
+    """The Hertz program's ``Start`` from the Gaussian program's scouting (one record or a stack): its ends
+    (..., ``N_STARTS``, P), each radius scaled to the Hertz disk of the same second moment, to go on from
+    the one of lowest Hertz cost."""
+    ends = np.array(scout.ends, float)
+    ends[..., INDEX["log_a"]] += np.log(HERTZ_PER_GAUSS)
+    return candidates(ends, np.asarray(scout.free))
 
 
 def fit_one(rec: Record, settings: Settings, start: Start | None = None) -> Summary:
@@ -202,8 +208,7 @@ def fit_one(rec: Record, settings: Settings, start: Start | None = None) -> Summ
     With no start, the Hertz window goes on from the Gaussian program's scouting of its starts (``core``)."""
     program, rec_j = _programs()["core"], _as_jnp(rec)
     if start is None and settings.hertz is not None:
-        scout = program(rec_j, settings._replace(hertz=None), _as_jnp(scouting()))
-        start = _hertz_start(scout.ends, scout.free)
+        start = _hertz_start(program(rec_j, settings._replace(hertz=None), _as_jnp(scouting())))
     out = program(rec_j, settings, _as_jnp(no_start() if start is None else start))
     return jax.tree.map(np.asarray, out)
 
@@ -223,15 +228,12 @@ def fit_many(recs: list[Record], settings: Settings, size: int | None = None, *,
         return [fit_one(r, settings) for r in recs]
     n = len(recs)
     size = max(size or n, n)
-    stacked = _as_jnp(jax.tree.map(lambda *x: np.stack(x), *(recs + [recs[0]] * (size - n))))
+    stacked = _as_jnp(_stack(recs + [recs[0]] * (size - n)))
     program = _programs()["core_many"]
-    many = lambda start: _as_jnp(jax.tree.map(lambda x: np.stack([x] * size), start))       # noqa: E731
-    starts = many(no_start())
+    start = _stack([no_start()] * size)
     if settings.hertz is not None:
-        scout = jax.tree.map(np.asarray, program(stacked, settings._replace(hertz=None), many(scouting())))
-        hertz = [_hertz_start(e, f) for e, f in zip(scout.ends, scout.free)]
-        starts = _as_jnp(jax.tree.map(lambda *x: np.stack(x), *hertz))
-    out = program(stacked, settings, starts)
+        start = _hertz_start(program(stacked, settings._replace(hertz=None), _as_jnp(_stack([scouting()] * size))))
+    out = program(stacked, settings, _as_jnp(start))
     out = jax.tree.map(np.asarray, out)
     return [jax.tree.map(lambda x, i=i: x[i], out) for i in range(n)]
 

@@ -36,8 +36,9 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
     all); n_start and n_final may be traced too (n_start 1: each start is only evaluated, and the final
     iterations go on from the one of lowest cost). skip_starts: (traced) go straight to the final
-    iterations from ``starts[0]``. Returns theta (P,), r, the Jacobian of r (R, P) and aux at theta; with ``ends``, also
-    where each start ended (S, P) (non-finite ones as they are; a start not explored as it was given).
+    iterations from ``starts[0]``. Returns theta (P,), r, the Jacobian of r (R, P) and aux at theta; with
+    ``ends``, also where each start ended (S, P) (non-finite ones as they are; a start not explored as it
+    was given).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
