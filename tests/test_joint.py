@@ -122,18 +122,27 @@ def test_the_hertz_quadrature_is_converged_where_the_spectra_are_above_the_noise
         assert err.max() < 2e-3 and np.median(err) < 2e-5, p
 
 
-def test_the_custom_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("window", ["gaussian", "hertz"])
+def test_the_custom_jacobian_matches_finite_differences(window):
     omega = jnp.linspace(5.0, 300.0, 9)
     q = jnp.concatenate([jnp.array([0.016, 0.011, 1.5e-3, 0.4, -0.7]), LOG_PHI])
-    # one compiled program serves the primal (for the differences) and the custom JVP
-    jvp = jax.jit(lambda q, dq: jax.jvp(lambda q: lines.log_matrix(q[:3], q[5:], q[3:5], omega, DEPTHS, KNOTS)[0],
-                                        (q,), (dq,)))
+    # the Hertz table's coefficients as an argument (folded into the program as a constant, it compiles slower)
+    coef = hertz_table().coef if window == "hertz" else None
+    win = 1 if window == "hertz" else None
+
+    # one compiled program serves the primal (for the differences) and the custom JVP (the Hertz window's takes
+    # every tangent from one table lookup)
+    @jax.jit
+    def jvp(q, dq, coef):
+        return jax.jvp(lambda q: lines.log_matrix(q[:3], q[5:], q[3:5], omega, DEPTHS, KNOTS, win, coef)[0],
+                       (q,), (dq,))
+
     # central differences in log of the physical parameters, the angular factor and the knots
     step = np.concatenate([1e-5 * np.asarray(q[:3]), np.full(2 + 12, 1e-5)])
     for i in (0, 1, 2, 3, 4, 7, 11):
         dq = jnp.zeros_like(q).at[i].set(step[i])
-        fd = (np.asarray(jvp(q + dq, dq)[0]) - np.asarray(jvp(q - dq, dq)[0])) / (2 * step[i])
-        tangent = np.asarray(jvp(q, dq)[1]) / step[i]
+        fd = (np.asarray(jvp(q + dq, dq, coef)[0]) - np.asarray(jvp(q - dq, dq, coef)[0])) / (2 * step[i])
+        tangent = np.asarray(jvp(q, dq, coef)[1]) / step[i]
         used = np.abs(fd) > 1e-8
         assert np.allclose(tangent[used], fd[used], rtol=2e-4, atol=1e-6), i
 

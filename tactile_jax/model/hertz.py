@@ -37,6 +37,9 @@ hertz_table(**params) -> HertzTable
     build or load the table (once per process; cached on disk).
 hertz_hn(k_s, k_p, depths, a, table=None, depth_index=None, far_field=True) -> Hn
     signed, dimensionless; k_s, k_p (C, ...) rad/m, depths (D,) m, a scalar m.
+hertz_lookup(...same...) -> Lookup(val, d_s, d_p, d_d)
+    Hn and its partials, looked up once as constants: ``hertz_factors(..., lookup=)`` then takes
+    any number of tangents at those nodes for that one lookup (the joint model's Jacobian).
 hertz_factors(...same...) -> (log_env, mant)
     Hn = mant * exp(log_env): log_env is the analytic envelope ``hertz_log_envelope`` (smooth,
     |Hn| / env < 1.6), mant is signed and O(1), smooth through the zeros of Hn.  For log-space
@@ -66,6 +69,8 @@ __all__ = [
     "hertz_table",
     "hertz_hn",
     "hertz_factors",
+    "hertz_lookup",
+    "Lookup",
     "hertz_log_envelope",
     "hertz_reference",
 ]
@@ -729,7 +734,13 @@ def _hn(meta, depth_index, far_field, ks, kp, depths, a, coef):
 def _hn_jvp(meta, depth_index, far_field, primals, tangents):
     ks, kp, depths, a, coef = primals
     dks, dkp, ddep, da, _ = tangents
-    val, d_s, d_p, d_d = _all(meta, depth_index, far_field, ks, kp, depths, a, coef)
+    return _tangent(depth_index, ks, kp, depths, a, _all(meta, depth_index, far_field, ks, kp, depths, a, coef),
+                    dks, dkp, ddep, da)
+
+
+def _tangent(depth_index, ks, kp, depths, a, lookup, dks, dkp, ddep, da):
+    """Hn and its tangent from the lookup's value and partials in (kappa_s, kappa_p, delta)."""
+    val, d_s, d_p, d_d = lookup
     dt = val.dtype
     a = jnp.asarray(a, dt)
     shape1 = (-1,) + (1,) * (val.ndim - 1)
@@ -742,6 +753,27 @@ def _hn_jvp(meta, depth_index, far_field, primals, tangents):
     tan = (g_s * (a * dks + ks * da) + g_p * (a * dkp + kp * da)
            + d_d * (dd / a - d * da / (a * a)))
     return val, tan.astype(val.dtype)
+
+
+class Lookup(NamedTuple):
+    """Hn at nodes and its partials in (kappa_s, kappa_p, delta), from one table lookup (``hertz_lookup``)."""
+
+    val: jax.Array
+    d_s: jax.Array
+    d_p: jax.Array
+    d_d: jax.Array
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _hn_given(depth_index, ks, kp, depths, a, lookup):
+    return lookup.val
+
+
+@_hn_given.defjvp
+def _hn_given_jvp(depth_index, primals, tangents):
+    ks, kp, depths, a, lookup = primals
+    dks, dkp, ddep, da, _ = tangents
+    return _tangent(depth_index, ks, kp, depths, a, lookup, dks, dkp, ddep, da)
 
 
 def _default_depth_index(k_s, depths):
@@ -804,8 +836,20 @@ def hertz_log_envelope(k_s, k_p, depth, a):
     return jnp.log(_envelope((k_s * a).astype(dt), (k_p * a).astype(dt), (depth / a).astype(dt)))
 
 
+def hertz_lookup(k_s, k_p, depths, a, table: HertzTable | None = None, depth_index=None,
+                 far_field: bool = True) -> Lookup:
+    """Hn and its partials at the nodes, looked up once, as constants (no tangents flow through them): give
+    them to ``hertz_factors(..., lookup=)`` at the same nodes, so that several tangents of the factors
+    (a forward-mode Jacobian) cost one lookup. Same arguments as ``hertz_hn``."""
+    table = hertz_table() if table is None else table
+    depth_index = _default_depth_index(k_s, depths) if depth_index is None else tuple(depth_index)
+    k_s, k_p = jnp.broadcast_arrays(jnp.asarray(k_s), jnp.asarray(k_p))
+    out = _all(table.meta, depth_index, bool(far_field), k_s, k_p, jnp.asarray(depths), jnp.asarray(a), table.coef)
+    return Lookup(*(lax.stop_gradient(x) for x in out))
+
+
 def hertz_factors(k_s, k_p, depths, a, table: HertzTable | None = None, depth_index=None,
-                  far_field: bool = True):
+                  far_field: bool = True, lookup: Lookup | None = None):
     """Channel factors for a log-space line integral: (log_env, mant) with Hn = mant * exp(log_env).
 
     Same arguments as ``hertz_hn``. log_env (C, ...) is the analytic envelope
@@ -813,9 +857,14 @@ def hertz_factors(k_s, k_p, depths, a, table: HertzTable | None = None, depth_in
     An entry of the spectral matrix is then the signed sum
     sum_n exp(base_n + log_env_i + log_env_j) mant_i mant_j, whose tangents are finite everywhere
     (log|Hn| would have infinite tangents at the zeros of Hn).
+    lookup: ``hertz_lookup`` at these nodes (None: looked up here); Hn and its tangents then come from it.
     """
     depth_index = _default_depth_index(k_s, depths) if depth_index is None else tuple(depth_index)
-    hn = hertz_hn(k_s, k_p, depths, a, table, depth_index, far_field)
+    if lookup is None:
+        hn = hertz_hn(k_s, k_p, depths, a, table, depth_index, far_field)
+    else:
+        k_s, k_p = jnp.broadcast_arrays(jnp.asarray(k_s), jnp.asarray(k_p))
+        hn = _hn_given(depth_index, k_s, k_p, jnp.asarray(depths), jnp.asarray(a), lookup)
     dt = hn.dtype
     a = jnp.asarray(a, dt)
     d = jnp.asarray(depths, dt)[jnp.asarray(depth_index)].reshape((-1,) + (1,) * (hn.ndim - 1))
