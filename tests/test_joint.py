@@ -198,6 +198,31 @@ def test_the_solver_keeps_the_best_start_and_holds_the_first_stage_mask():
     assert all(c <= float(np.sum(np.square(_toy(s0, x)[0]))) for c, s0 in zip(cost, starts))
 
 
+def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
+    x = jnp.linspace(0.0, 3.0, 60)
+    free = jnp.array([True, True])
+    calls = []
+
+    def counted(theta, x):
+        jax.debug.callback(lambda: calls.append(1))
+        return _toy(theta, x)
+
+    def solve(start, stop_tol):
+        calls.clear()
+        theta, *_ = levenberg_marquardt(counted, jnp.array([start]), x, free, free, n_start=1, n_first=0,
+                                        n_final=30, skip_starts=True, stop_tol=stop_tol)
+        jax.effects_barrier()
+        return np.asarray(theta), len(calls)
+
+    full, n_full = solve([2.9, 0.4], None)
+    early, n_early = solve([2.9, 0.4], 1e-10)
+    assert n_full == 31 and n_early < 15
+    assert np.allclose(early, full, atol=1e-5) and np.allclose(full, [3.0, 0.5], atol=1e-6)
+    # from the optimum itself: one evaluation, and it stays there
+    at, n_at = solve(full, 1e-10)
+    assert n_at == 1 and np.array_equal(at, full)
+
+
 def test_resolution_rules():
     fs, depths, n = 1000.0, np.array([D1, D2]), 16000
     # a slow slip's ratio falls fast per bin: longer segments, capped at 6 half-overlapping ones

@@ -68,6 +68,9 @@ POOR_FIT_REDCHI = 2.0
 DECREMENT_TOL = 1e-2
 #: ... or move every free non-texture parameter by less than this many of its sigmas
 STEP_TOL = 0.1
+#: the final iterations stop once the decrement still to go is below this (chi2 units): the parameters are then
+#: within about 0.03 of their sigmas of where the full count of iterations would take them
+STOP_TOL = 1e-3
 _A_CLIP = (2e-5, 0.05)
 _OWN = 3          # vx, vy, a: each its own jackknife scale
 #: a Hertz disk's radius per Gaussian window radius of the same second moment along a probe (a^2/5 = a_g^2/3)
@@ -443,7 +446,7 @@ def core(record: Record, settings: Settings, start: Start | None = None) -> Summ
         (prep.data, settings.hertz), free, prep.first, n_start=jnp.where(pick, 1, n_start), n_first=n_first,
         n_final=jnp.where(start.scout, 0, n_final),
         n_explore=jnp.where(start.scout, N_STARTS, jnp.where(pick, start.n, OWN_STARTS[settings.window])),
-        skip_starts=start.use & ~pick, ends=True)
+        skip_starts=start.use & ~pick, ends=True, stop_tol=STOP_TOL)
     return finish(record, prep.data, free, Located(b.i0, b.n_leak, b.k0, b.speed0), theta, r, jac, model,
                   settings.hertz)._replace(ends=ends)
 
