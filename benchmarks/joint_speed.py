@@ -192,7 +192,7 @@ def _stage_programs():
         n_first, n_start, n_final = core_mod.ITERATIONS
         out = levenberg_marquardt(core_mod.residuals_and_model, starts, (prep.data, None), free, prep.first,
                                   n_start=n_start, n_first=n_first, n_final=n_final, skip_starts=skip,
-                                  n_explore=core_mod.OWN_STARTS["gaussian"])
+                                  n_explore=core_mod.OWN_STARTS["gaussian"], stop_tol=core_mod.STOP_TOL)
         return out, free
 
     def finish(rec, prep, free, out):

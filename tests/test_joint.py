@@ -122,7 +122,8 @@ def test_the_hertz_quadrature_is_converged_where_the_spectra_are_above_the_noise
         assert err.max() < 2e-3 and np.median(err) < 2e-5, p
 
 
-@pytest.mark.parametrize("window", ["gaussian", "hertz"])
+# the Hertz window's program compiles 7 s: the slow tier
+@pytest.mark.parametrize("window", ["gaussian", pytest.param("hertz", marks=pytest.mark.slow)])
 def test_the_custom_jacobian_matches_finite_differences(window):
     omega = jnp.linspace(5.0, 300.0, 9)
     q = jnp.concatenate([jnp.array([0.016, 0.011, 1.5e-3, 0.4, -0.7]), LOG_PHI])
