@@ -26,7 +26,8 @@ either pair's window factor ends.
 ``log_matrix`` carries its own JVP: the node positions and channel factors
 depend on (vx, vy, a) only, so three forward tangents go through them (one
 ``jax.jvp`` each: a ``jax.linearize`` mapped over them ran 2x slower inside the
-Jacobian); the texture knots enter through the spline's basis at the
+Jacobian, a vmapped ``jax.jvp`` 1.6-2x; under the Hertz window all three take their
+tangents from one table lookup, ``hertz.hertz_lookup``); the texture knots enter through the spline's basis at the
 nodes, a fixed linear map, and (p, q) through A's closed-form derivatives. A
 Jacobian over all parameters then costs about four evaluations instead of one
 per parameter.
@@ -207,8 +208,8 @@ def _log_matrix_jvp(primals, tangents):
     p_dot, phi_dot, aniso_dot = tangents[0], tangents[1], tangents[2]
     d1, d2 = depths[0], depths[1]
     # the nodes and their three tangents, one jvp each
-    # the Hertz table looked up once, its partials giving every tangent (the three jvp's looked it up three
-    # times inside the solver's loop, where XLA did not merge them: 17 against 11 ms a Jacobian)
+    # the Hertz table looked up once, its partials giving every tangent: a lookup per jvp is not merged by XLA
+    # inside the solver's loop (17 ms a Jacobian there against 12, benchmarks/hertz_lookup.py's record)
     only_gauss = _which(window, hertz_coef)[1]
     lookup = None if only_gauss else _hertz_lookup(p, omega, d1, d2, window, hertz_coef)
     fn = lambda q: _nodes(q, omega, d1, d2, window, hertz_coef, lookup)            # noqa: E731
