@@ -100,7 +100,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         take = ok | fresh
         new = jax.tree.map(lambda a, b: jnp.where(take, a, b), (trial, r_t, j_t, aux_t, cost_t),
                            (theta, r, jac, aux, cost))
-        return (*new, lam, nu), best, last, (k >= explore) & (_decrement(new[1], new[2], free) < stop)
+        done = False if stop_tol is None else (k >= explore) & (_decrement(new[1], new[2], free) < stop_tol)
+        return (*new, lam, nu), best, last, jnp.asarray(done)
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
     dtype = starts.dtype
@@ -110,7 +111,6 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
              jnp.asarray(2.0, dtype))
     best = state[:5]
     n_total = jnp.where(skip_starts, n_final, explore + n_final)
-    stop = -jnp.inf if stop_tol is None else stop_tol
 
     def step(loop):
         i, _, *carry = loop
