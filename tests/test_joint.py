@@ -208,14 +208,18 @@ def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
         jax.debug.callback(lambda: calls.append(1))
         return _toy(theta, x)
 
+    @jax.jit
+    def run(start, stop_tol):           # one program: a tolerance of 0 never stops
+        return levenberg_marquardt(counted, start[None], x, free, free, n_start=1, n_first=0, n_final=30,
+                                   skip_starts=True, stop_tol=stop_tol)[0]
+
     def solve(start, stop_tol):
         calls.clear()
-        theta, *_ = levenberg_marquardt(counted, jnp.array([start]), x, free, free, n_start=1, n_first=0,
-                                        n_final=30, skip_starts=True, stop_tol=stop_tol)
+        theta = np.asarray(run(jnp.asarray(start, float), stop_tol))
         jax.effects_barrier()
-        return np.asarray(theta), len(calls)
+        return theta, len(calls)
 
-    full, n_full = solve([2.9, 0.4], None)
+    full, n_full = solve([2.9, 0.4], 0.0)
     early, n_early = solve([2.9, 0.4], 1e-10)
     assert n_full == 31 and n_early < 15
     assert np.allclose(early, full, atol=1e-5) and np.allclose(full, [3.0, 0.5], atol=1e-6)
