@@ -24,8 +24,8 @@ import optimistix as optx
 
 from .._numerics import tiny
 
-__all__ = ["LsqResult", "equilibrated_inverse", "fit_statistics", "least_squares", "SOLVERS", "DECREMENT_TOL",
-           "STEP_TOL"]
+__all__ = ["LsqResult", "equilibrated_inverse", "fit_statistics", "gauss_newton_decrement", "least_squares",
+           "SOLVERS", "DECREMENT_TOL", "STEP_TOL"]
 
 SOLVERS = ("optimistix", "jaxopt")
 #: optimistix's Dogleg: not a user's choice, the fits' rescue where LM stops in a curved valley
@@ -84,6 +84,22 @@ def equilibrated_inverse(jtj, free):
     return d, scaled, jnp.linalg.pinv(scaled, hermitian=True)
 
 
+def _gauss_newton_step(r, jac, free, d, inv):
+    """The Gauss-Newton step in the equilibrated variables (``equilibrated_inverse``'s d, inv) and its decrement,
+    the chi2 decrease it predicts, g^T (J^T J)^-1 g. jac: fixed columns zeroed."""
+    grad = jnp.where(free, (jac.T @ r) / d, 0.0)             # gradient of chi2 / 2, scaled variables
+    step = -inv @ grad
+    return step, -grad @ step
+
+
+def gauss_newton_decrement(r, jac, free):
+    """The Gauss-Newton decrement of residuals r (K,) with Jacobian jac (K, P) over ``free`` (chi2 units): the
+    ``decrement`` of ``fit_statistics``."""
+    jac = jac * free[None, :]
+    d, _, inv = equilibrated_inverse(jac.T @ jac, free)
+    return _gauss_newton_step(r, jac, free, d, inv)[1]
+
+
 def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: bool = True, n_prior: int = 0):
     """Fit statistics at ``theta``: (cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma), as in
     ``LsqResult``.
@@ -105,9 +121,7 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
     cov = inv / (d[:, None] * d[None, :])
     factor = jnp.where(scale_covar, redchi, 1.0) * bin_factor
     cov = jnp.where(free[:, None] & free[None, :], cov * factor, 0.0)
-    grad = jnp.where(free, (jac_all.T @ r_all) / d, 0.0)     # gradient of chi2 / 2, scaled variables
-    step = -inv @ grad                                       # the Gauss-Newton step, scaled variables
-    decrement = -grad @ step
+    step, decrement = _gauss_newton_step(r_all, jac_all, free, d, inv)
     step_sigma = jnp.where(free, step / jnp.sqrt(jnp.clip(jnp.diag(inv), tiny(inv), None)), 0.0)
     return cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma
 

@@ -30,18 +30,9 @@ import jax.numpy as jnp
 
 from .._numerics import tiny
 from .gauss_newton import damped_step
-from .lsq import equilibrated_inverse
+from .lsq import gauss_newton_decrement
 
 __all__ = ["levenberg_marquardt"]
-
-
-def _decrement(r, jac, free):
-    """The Gauss-Newton decrement g^T (J^T J)^-1 g over the ``free`` parameters (chi2 units)."""
-    jac = jac * free
-    d, _, inv = equilibrated_inverse(jac.T @ jac, free)
-    grad = jnp.where(free, (jac.T @ r) / d, 0.0)
-    out = grad @ inv @ grad
-    return jnp.where(jnp.isfinite(out), out, jnp.inf)
 
 
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
@@ -100,7 +91,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         take = ok | fresh
         new = jax.tree.map(lambda a, b: jnp.where(take, a, b), (trial, r_t, j_t, aux_t, cost_t),
                            (theta, r, jac, aux, cost))
-        done = False if stop_tol is None else (k >= explore) & (_decrement(new[1], new[2], free) < stop_tol)
+        done = False if stop_tol is None else (k >= explore) & (gauss_newton_decrement(new[1], new[2], free)
+                                                                < stop_tol)
         return (*new, lam, nu), best, last, jnp.asarray(done)
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])

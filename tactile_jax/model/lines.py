@@ -26,9 +26,9 @@ either pair's window factor ends.
 ``log_matrix`` carries its own JVP: the node positions and channel factors
 depend on (vx, vy, a) only, so three forward tangents go through them (one
 ``jax.jvp`` each: a ``jax.linearize`` mapped over them ran 2x slower inside the
-Jacobian, a vmapped ``jax.jvp`` 1.6-2x; under the Hertz window all three take their
-tangents from one table lookup, ``hertz.hertz_lookup``); the texture knots enter through the spline's basis at the
-nodes, a fixed linear map, and (p, q) through A's closed-form derivatives. A
+Jacobian, a vmapped ``jax.jvp`` 1.6-2x; under the Hertz window all three take
+their tangents from one table lookup, ``hertz.hertz_lookup``); the texture
+knots enter through the spline's basis at the nodes, a fixed linear map, and (p, q) through A's closed-form derivatives. A
 Jacobian over all parameters then costs about four evaluations instead of one
 per parameter.
 """
@@ -81,9 +81,7 @@ def _nodes(p, omega, d1, d2, window=None, hertz_coef=None, lookup=None):
         g_env = log_g(k_s, depth, a) + jnp.stack([ly, ly, lx, lx])
         if only_gauss:
             return log_k, log_w, g_env, jnp.ones_like(g_env), cos2, sin2
-    table = hertz_mod.HertzTable(hertz_coef, hertz_mod.hertz_table().meta)
-    h_env, h_mant = hertz_mod.hertz_factors(k_s, jnp.stack([ky, ky, kx, kx]), jnp.stack([d1, d2]), a, table,
-                                            depth_index=(0, 1, 0, 1), lookup=lookup)
+    h_env, h_mant = hertz_mod.hertz_factors(*_hertz_args(kx, ky, d1, d2, a, hertz_coef), lookup=lookup)
     h_env, h_mant = h_env.astype(kx.dtype), h_mant.astype(kx.dtype)
     if only_hertz:
         return log_k, log_w, h_env, h_mant, cos2, sin2
@@ -99,12 +97,17 @@ def _which(window, hertz_coef):
     return hertz and static and window == 1, not hertz or (static and window != 1)
 
 
+def _hertz_args(kx, ky, d1, d2, a, hertz_coef):
+    """The four channels' arguments of ``hertz.hertz_factors`` / ``hertz.hertz_lookup`` at nodes (kx, ky)."""
+    table = hertz_mod.HertzTable(hertz_coef, hertz_mod.hertz_table().meta)
+    return (jnp.stack([kx, kx, ky, ky]), jnp.stack([ky, ky, kx, kx]), jnp.stack([d1, d2]), a, table,
+            (0, 1, 0, 1))
+
+
 def _hertz_lookup(p, omega, d1, d2, window, hertz_coef):
     """The Hertz table's values and partials at the nodes of ``_nodes`` (one lookup, constants for tangents)."""
     kx, ky = _line(p, omega, d1, window, hertz_coef)[2:4]
-    table = hertz_mod.HertzTable(hertz_coef, hertz_mod.hertz_table().meta)
-    return hertz_mod.hertz_lookup(jnp.stack([kx, kx, ky, ky]), jnp.stack([ky, ky, kx, kx]), jnp.stack([d1, d2]),
-                                  p[2], table, depth_index=(0, 1, 0, 1))
+    return hertz_mod.hertz_lookup(*_hertz_args(kx, ky, d1, d2, p[2], hertz_coef))
 
 
 def _line(p, omega, d1, window, hertz_coef):
