@@ -7,16 +7,16 @@
 2. the fit's window of ``N_FIT`` bins from the first usable one, and on it the measured
    blocks, their masks and weights (``data``);
 3. starting values: each pair fitted alone with the exact R curve (from its Eq. 6 speed and
-   Eq. 26 radius), and two more speed starts that take each axis in turn as the major one (a
-   pair that hears only window leakage mimics a fast slip along it); the texture knots from
-   the shallow spectrum;
+   Eq. 26 radius; the Hertz program's own starts from each pair's Hertz curve), and two more
+   speed starts that take each axis in turn as the major one (a pair that hears only window
+   leakage mimics a fast slip along it); the texture knots from the shallow spectrum;
 4. each start: the texture alone with the physics held, then every parameter; the lowest
    cost goes on (``solve.levenberg_marquardt``: one loop of fixed iterations, no
    data-dependent control flow, so records vmap side by side). The Hertz window goes on
    from the Gaussian program's ends of its five starts, the one of lowest Hertz cost
    (``Start``, ``run.fit_one``): the Hertz program explores its own starts only when given
-   none, as a Gaussian iteration costs a third of a Hertz one, and the Hertz program holds
-   no Gaussian model to compile;
+   none (``fit.explored``: where the first solve is poor), as a Gaussian iteration costs a
+   third of a Hertz one, and the Hertz program holds no Gaussian model to compile;
 5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
    through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
    other parameters the three pooled, none below the reduced chi-square;
@@ -39,7 +39,7 @@ from jax.scipy.special import digamma
 from .._numerics import tiny
 from .gauss_newton import gauss_newton
 from .lsq import equilibrated_inverse, fit_statistics
-from .pair_fit import exact_residuals as pair_residuals
+from .pair_fit import exact_residuals, hertz_table_residuals
 from ..spectral.prewhiten import filter_response
 from ..model.r_curve import log_g
 from ..spectral import band as band_mod
@@ -182,21 +182,27 @@ def _knot_start(log_k_obs, phi_obs, sel, log_knots):
     return jnp.where(sw_near > 1e-6, near, far)
 
 
-def _pair_fits(om, log_ratio, err, band, depths, log_gains, speed0, a0, log_kernel, fit_gain):
+def _pair_fits(om, log_ratio, err, band, depths, log_gains, speed0, a0, log_kernel, fit_gain, hertz=None):
     """Each pair alone with the exact R curve (the starts of the joint fit): (speed, a, a's relative error,
-    usable) per pair. A pair that hears only window leakage (slip across it) has a flat ratio: its
-    speed runs away or its fit does not settle, and it is not usable."""
+    usable) per pair. A pair that hears only window leakage (slip across it) has a flat ratio: its speed
+    runs away or its fit does not settle, and it is not usable. hertz: the Hertz table's coefficients, for
+    the Hertz disk's curve (None: the Gaussian window's). The Gaussian curve cannot follow a large disk's
+    ratio at a slow slip (its radius runs away), so the Hertz program's own starts use the disk's."""
     def one(y, e, m, g, v, a):
         theta0 = jnp.stack([jnp.log(v), jnp.log(a), g])
         free = jnp.array([True, True, False]) | (jnp.arange(3) == 2) & fit_gain
         # pair_fit's exact-R model, averaged by the spectral window on the fixed kernel grid
         args = (om, y, e, m, depths[0], depths[1], jnp.asarray(KERNEL_OFFSETS, om.dtype), log_kernel)
-        fit = gauss_newton(pair_residuals, theta0, args, free)
+        if hertz is None:
+            fit = gauss_newton(exact_residuals, theta0, args, free)
+        else:
+            fit = gauss_newton(hertz_table_residuals, theta0, args + (hertz,), free)
         sd = jnp.sqrt(jnp.clip(jnp.diag(fit.cov) * jnp.maximum(fit.redchi, 1.0) / jnp.maximum(fit.redchi, tiny(
             fit.redchi)), 0.0, None))
         speed = jnp.exp(fit.theta[0])
-        ok = (fit.converged & jnp.all(jnp.isfinite(fit.theta)) & (jnp.sum(m) >= 5) & (speed < 10.0)
-              & (sd[0] < 0.5))
+        # the Hertz curve's last steps creep (its edge term): within STEP_TOL sigma of its optimum it has settled
+        settled = fit.converged | ((hertz is not None) & jnp.all(jnp.abs(fit.step_sigma) < STEP_TOL))
+        ok = settled & jnp.all(jnp.isfinite(fit.theta)) & (jnp.sum(m) >= 5) & (speed < 10.0) & (sd[0] < 0.5)
         return speed, jnp.exp(fit.theta[1]), sd[1], ok
 
     v = jnp.where(jnp.isfinite(speed0), speed0, 0.02)
@@ -215,8 +221,19 @@ class Prepared(NamedTuple):
     band: band_mod.Band
 
 
-def prepare(record: Record, settings: Settings) -> Prepared:
-    """Steps 1-3 of the module."""
+def _speed_radius(v_pair, a_pair, a_rel, have, known, velocity):
+    """The start's speeds (2,) and radius from the pairs' fits (``_pair_fits``): each usable pair's speed (a
+    known one as given; a pair with none at 0.05 of the fastest), the radius of the best-measured pair."""
+    v_any = jnp.where(have.any(), jnp.max(jnp.where(have, v_pair, 0.0)), 0.02)
+    v0 = jnp.where(known, velocity, jnp.where(have, v_pair, 0.05 * v_any))
+    v0 = jnp.maximum(v0, 1e-3 * jnp.maximum(jnp.max(v0), 1e-4))
+    a_rel = jnp.where(have & (a_rel > 0), a_rel, jnp.inf)
+    return v0, jnp.clip(jnp.where(jnp.isfinite(a_rel).any(), a_pair[jnp.argmin(a_rel)], 2e-3), *_A_CLIP)
+
+
+def prepare(record: Record, settings: Settings, own_starts=True) -> Prepared:
+    """Steps 1-3 of the module. own_starts: (traced) whether the program's own starts are wanted (not where a
+    start is given); the Hertz program then fits each pair with the Hertz curve for them."""
     seg = record.seg
     spec = band_mod.spectra(seg)
     depths = record.depths
@@ -252,33 +269,32 @@ def prepare(record: Record, settings: Settings) -> Prepared:
 
     # ---- starting values: Eq. 6 speeds, Eq. 26 radius, texture knots from the faster pair's shallow spectrum
     known = record.known
-    v_pair, a_pair, a_rel, have = _pair_fits(om, _window(b.log_ratio, i0), _window(b.err, i0), band_w, depths,
-                                             log_gains, b.speed0, b.a0, data_kernel := _log_kernel(seg.kernel),
-                                             settings.fit_gain)
-    v_any = jnp.where(have.any(), jnp.max(jnp.where(have, v_pair, 0.0)), 0.02)
-    v0 = jnp.where(known, record.velocity, jnp.where(have, v_pair, 0.05 * v_any))
-    v_scale = jnp.maximum(jnp.max(v0), 1e-4)
-    v0 = jnp.maximum(v0, 1e-3 * v_scale)
-    a_rel = jnp.where(have & (a_rel > 0), a_rel, jnp.inf)
-    a0 = jnp.clip(jnp.where(jnp.isfinite(a_rel).any(), a_pair[jnp.argmin(a_rel)], 2e-3), *_A_CLIP)
-    if settings.hertz is not None:      # the pair starts are Gaussian radii: a Hertz disk of equal second moment
+    data_kernel = _log_kernel(seg.kernel)
+    pair_args = (om, _window(b.log_ratio, i0), _window(b.err, i0), band_w, depths, log_gains, b.speed0, b.a0,
+                 data_kernel, settings.fit_gain)
+    v0, a0 = _speed_radius(*_pair_fits(*pair_args), known, record.velocity)
+    v_s, a_s = v0, a0                   # the starts' speeds and radius
+    if settings.hertz is not None:      # the pair fits give Gaussian radii: a Hertz disk of equal second moment
         a0 = a0 * HERTZ_PER_GAUSS
+        # the program's own starts, wanted only where no start is given: each pair fitted with the Hertz curve
+        v_s, a_s = jax.lax.cond(own_starts, lambda: _speed_radius(*_pair_fits(*pair_args, settings.hertz), known,
+                                                                 record.velocity), lambda: (v0, a0))
     main = jnp.argmax(jnp.where(b.n_band > 0, v0, -jnp.inf))
     k_lo = 0.5 * om[0] / jnp.max(v0)
     k_hi = 25.0 / (2.0 * d1)
     log_knots = jnp.linspace(jnp.log(k_lo), jnp.log(jnp.maximum(k_hi, 4 * k_lo)), N_KNOTS)
     shallow = spec.psd[0::2]
 
-    def texture_start(v, axis):
+    def texture_start(v, axis, a):
         """log Phi at the knots from the shallow spectrum of ``axis``'s pair, read at k = omega / v."""
         k_obs = spec.omega / v
         sel = b.band[axis] & (k_obs > 0)
         log_k_obs = jnp.log(jnp.where(k_obs > 0, k_obs, 1.0))
-        phi_obs = (jnp.log(jnp.clip(shallow[axis], tiny(shallow), None)) + jnp.log(v) - 2 * log_g(k_obs, d1, a0)
-                   - jnp.log(jnp.sqrt(3 * jnp.pi) / a0))
+        phi_obs = (jnp.log(jnp.clip(shallow[axis], tiny(shallow), None)) + jnp.log(v) - 2 * log_g(k_obs, d1, a)
+                   - jnp.log(jnp.sqrt(3 * jnp.pi) / a))
         return _knot_start(log_k_obs, phi_obs, sel, log_knots)
 
-    log_phi0 = texture_start(v0[main], main)
+    log_phi0 = texture_start(v0[main], main, a0)
     floors = band_mod.noise_floors(spec)
     noise = jnp.where(settings.noise_floor, floors.at[:, 0].set(-700.0), floors)
     noise0 = jnp.where(settings.noise_floor, jnp.log(jnp.mean(jnp.exp(floors[:, 0]))), -700.0)
@@ -316,13 +332,14 @@ def prepare(record: Record, settings: Settings) -> Prepared:
     # speed starts: as found, and each axis in turn as the major one at its own pair's speed, the other at
     # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it); then
     # each axis with the other at 0.01 of it, which the Hertz window, whose sharp edge leaks more, explores too
-    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v0[m]), jnp.log(f * v0[m])) for f in (0.15, 0.01) for m in (0, 1)]
+    alt = [jnp.where(jnp.arange(2) == m, jnp.log(v_s[m]), jnp.log(f * v_s[m])) for f in (0.15, 0.01) for m in (0, 1)]
     iv = jnp.array([i["log_vx"], i["log_vy"]])
-    starts = jnp.stack([theta0[iv]] + [jnp.where(known, theta0[iv], s) for s in alt])
+    starts = jnp.stack([jnp.log(v_s)] + [jnp.where(known, jnp.log(v_s), s) for s in alt])
 
     def start(lv):          # each start's texture read at its own major speed
         axis = jnp.argmax(lv)
-        return theta0.at[iv].set(lv).at[N_PHYS:].set(texture_start(jnp.exp(lv[axis]), axis))
+        return (theta0.at[iv].set(lv).at[i["log_a"]].set(jnp.log(a_s))
+                .at[N_PHYS:].set(texture_start(jnp.exp(lv[axis]), axis, a_s)))
 
     stage1 = free & ((idx >= N_PHYS) | (idx == i["log_ay"]))          # the texture and the y level, physics held
     return Prepared(data, jax.vmap(start)(starts), free, stage1, b)
@@ -434,9 +451,9 @@ def core(record: Record, settings: Settings, start: Start | None = None) -> Summ
 
     start: a ``Start`` (None: ``no_start()``); ``fit``'s extras run through this same program from one.
     """
-    prep = prepare(record, settings)
-    b = prep.band
     start = no_start() if start is None else start
+    prep = prepare(record, settings, ~jnp.asarray(start.use))
+    b = prep.band
     free = jnp.where(start.use, start.free, prep.free)
     n_first, n_start, n_final = ITERATIONS
     # candidates are the starts, each only evaluated (the loop's own evaluation: no second program to compile)

@@ -29,7 +29,7 @@ from ..status import FIT_CODES, Status
 from ..uncertainty.profile import add_profiles
 from . import run
 from . import select as model_select
-from .core import Record, Settings, Summary
+from .core import Record, Settings, Summary, no_start
 from .forward import PARAMS
 from .options import FitOptions, known_gains, options_from_file, settings_of
 from .pair_fit import fit_pair
@@ -39,6 +39,8 @@ from .result import A_BOUNDS, V_BOUNDS, FitResult, result_from_summary, set_cont
 
 #: ``Summary.status`` of a fit that has not settled
 _UNSETTLED = FIT_CODES.index(Status.NOT_CONVERGED)
+#: statuses of a first solve that may sit in a wrong basin
+_POOR = (_UNSETTLED, FIT_CODES.index(Status.POOR_FIT))
 
 __all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "refine", "Refined", "settle",
            "with_line_model", "result_from_lines", "NO_XY_MESSAGE"]
@@ -344,10 +346,19 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
     window = settings.window
     window_margin, other, weight = None, None, 1.0
     bin_factor = float(rec.seg.bin_factor)
+    if options.window == "hertz":
+        s, note = explored(rec, settings, s)
+        notes.append(note)
     if options.window is None and settings.hertz is not None:
         gauss = settings._replace(hertz=None)
-        s, choice, window_margin, note, other, weight = model_select.choose_window(
-            s, _settled_refit(rec, gauss), bin_factor=bin_factor)
+        choose = lambda s_h: model_select.choose_window(s_h, _settled_refit(rec, gauss), bin_factor=bin_factor)  # noqa: E731
+        chosen = choose(s)
+        if int(chosen[0].status) in _POOR:
+            s, note = explored(rec, settings, s)
+            notes.append(note)
+            if note:
+                chosen = choose(s)
+        s, choice, window_margin, note, other, weight = chosen
         if choice == "gaussian":
             settings, window = gauss, "gaussian"
             warnings = []                       # the Hertz fit's settling is not this result's
@@ -368,6 +379,20 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
     notes.append(note)
     return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
                    tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique)
+
+
+def explored(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, str]:
+    """Where the Hertz program's first solve ``s`` (from the Gaussian program's scouting) is poor or unsettled,
+    the Hertz program's own starts (each pair fitted with the Hertz curve): the fit of lower chi-square, and a
+    note where it is the new one. A large disk at a slow slip bends the ratio beyond what the Gaussian
+    window follows, and the scouting's starts then all lie in wrong basins."""
+    if settings.hertz is None or int(s.status) not in _POOR:
+        return s, ""
+    alt = settle(rec, settings, run.fit_one(rec, settings, no_start()))[0]
+    if not float(alt.chi2) < float(s.chi2):
+        return s, ""
+    return alt, (f"the Hertz window's own starts found a better fit than the Gaussian scouting's (chi-square "
+                 f"{float(alt.chi2):.4g} against {float(s.chi2):.4g})")
 
 
 def _settled_refit(rec: Record, settings: Settings):

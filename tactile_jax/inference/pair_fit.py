@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..model import hertz as hertz_mod
 from ..model.closed_form import radius_from_offset, slope_speed
 from .lsq import least_squares
 from ..model.r_curve import log_r_exact, log_r_hertz, log_r_rough
@@ -83,6 +84,21 @@ def _log_r_hertz_1d(alpha, d1, d2, a):
 def hertz_residuals(theta, args):
     """Residuals of the Hertz-window R curve (Eq. 12) for a texture varying along the slip."""
     return _pair_residuals(_log_r_hertz_1d, theta, args)
+
+
+def hertz_table_residuals(theta, args):
+    """``hertz_residuals`` from the Hertz table (``model.hertz``) in place of quadrature: ``args`` end with the
+    table's coefficients (data, as ``core.Settings.hertz`` holds them). The joint fit's Hertz starts use it:
+    one table lookup per node, where the quadrature's 4 panels made two pair fits cost 1.6 s."""
+    coef = args[-1]
+
+    def log_r(alpha, d1, d2, a):
+        table = hertz_mod.HertzTable(coef, hertz_mod.hertz_table().meta)
+        k = jnp.stack([alpha, alpha])
+        hn = hertz_mod.hertz_hn(k, jnp.zeros_like(k), jnp.stack([d1, d2]), a, table, depth_index=(0, 1))
+        return jnp.log(jnp.abs(hn[1])) - jnp.log(jnp.abs(hn[0]))
+
+    return _pair_residuals(log_r, theta, args[:-1])
 
 
 def kernel_log_weights(omega, kernel, spectrum=None):
