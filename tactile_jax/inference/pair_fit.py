@@ -93,7 +93,7 @@ def hertz_table_residuals(theta, args):
     coef = args[-1]
 
     def log_r(alpha, d1, d2, a):
-        table = hertz_mod.HertzTable(coef, hertz_mod.hertz_table().meta)
+        table = hertz_mod.table_of(coef)
         k = jnp.stack([alpha, alpha])
         # a usable bin has kappa = alpha a far below the table's edge (148): no far field to compile (3 s of 29)
         hn = hertz_mod.hertz_hn(k, jnp.zeros_like(k), jnp.stack([d1, d2]), a, table, depth_index=(0, 1),

@@ -35,6 +35,8 @@ Public API
 ----------
 hertz_table(**params) -> HertzTable
     build or load the table (once per process; cached on disk).
+table_of(coef) -> HertzTable
+    the default table with given coefficients (a compiled program's data).
 hertz_hn(k_s, k_p, depths, a, table=None, depth_index=None, far_field=True) -> Hn
     signed, dimensionless; k_s, k_p (C, ...) rad/m, depths (D,) m, a scalar m.
 hertz_lookup(...same...) -> Lookup(val, d_s, d_p, d_d)
@@ -67,6 +69,7 @@ __all__ = [
     "HertzTable",
     "build_table",
     "hertz_table",
+    "table_of",
     "hertz_hn",
     "hertz_factors",
     "hertz_lookup",
@@ -313,6 +316,12 @@ def hertz_table(dtype=jnp.float32, cache=True, verbose=False, **params) -> Hertz
     if cache:
         _TABLES[mkey] = out
     return out
+
+
+def table_of(coef) -> HertzTable:
+    """The default table with ``coef`` as its coefficients: how a compiled program, which takes the
+    coefficients as data (``inference.core.Settings.hertz``), rebuilds the table with its static ``meta``."""
+    return HertzTable(coef, hertz_table().meta)
 
 
 def _weights(t, p):

@@ -99,7 +99,7 @@ def _which(window, hertz_coef):
 
 def _hertz_args(kx, ky, d1, d2, a, hertz_coef):
     """The four channels' arguments of ``hertz.hertz_factors`` / ``hertz.hertz_lookup`` at nodes (kx, ky)."""
-    table = hertz_mod.HertzTable(hertz_coef, hertz_mod.hertz_table().meta)
+    table = hertz_mod.table_of(hertz_coef)
     return (jnp.stack([kx, kx, ky, ky]), jnp.stack([ky, ky, kx, kx]), jnp.stack([d1, d2]), a, table,
             (0, 1, 0, 1))
 
