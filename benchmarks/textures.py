@@ -24,6 +24,14 @@ the truth). Times are medians per record after compilation.
 
     python benchmarks/textures.py --scenes 50 --out benchmarks/out     # ~25 min on 2 cores
     python benchmarks/textures.py --kinds directional,modes --scenes 50 --out /tmp/tex
+    python benchmarks/textures.py --summarize benchmarks/out/textures.json --cache /tmp/texsim --out /tmp/tex
+
+Gratings and nets are also counted over the scenes whose probes determine what
+the target asks for (``determinable``): a grating's line held by both deep
+probes ``HEARD_DB`` above the noise in its bin (one pair
+alone gives one wavevector component, not the normal's direction), or two
+non-parallel lines of a net (its fundamentals, their sum and difference) so held,
+by the Gaussian window's line responses and the simulator's noise.
 """
 
 from __future__ import annotations
@@ -52,12 +60,16 @@ from tactile_jax.inference.options import FitOptions
 from tactile_jax.inference.fit import fit_recording  # noqa: E402
 from tactile_jax.simulation.scene import Scene, simulate  # noqa: E402
 from tactile_jax.spectral.estimate import default_nperseg  # noqa: E402
+from tactile_jax.model import r_curve  # noqa: E402
 from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet  # noqa: E402
+from tactile_jax.simulation.texture import _raised_cosine_bumps  # noqa: E402
 
 KINDS = ("isotropic", "directional", "modes", "grating", "wire_net")
 #: where simulated recordings are kept between runs (``--cache``); None: simulate every time
 _CACHE: Path | None = None
 FS, DURATION = 1000.0, 16.0
+#: a line counts as heard by a pair where its deep probe holds it this far above its noise floor (dB)
+HEARD_DB = 10.0
 
 
 def texture(kind: str, rng, seed: int):
@@ -117,6 +129,72 @@ def _normal_speeds(scene) -> list[float]:
     return [float(abs(np.cos(t) * v[0] + np.sin(t) * v[1])) for t in angles]
 
 
+def _line_coefficients(scene, order: int = 16):
+    """The texture's lines: wavevectors (n, 2) rad/m and complex amplitudes (n,) of u0 = sum c e^{i k.r}, from
+    one periodic cell (a sine grating: its two half-amplitude terms; a net: a 2-D FFT of max(f1, f2))."""
+    tex = scene.texture
+    k0 = 2 * np.pi / tex.pitch
+    e1 = np.array([np.cos(tex.angle), np.sin(tex.angle)])
+    e2 = np.array([-e1[1], e1[0]])
+    if isinstance(tex, Grating):
+        if tex.profile != "sine":
+            raise ValueError("heard_by_both_pairs models sine gratings only")
+        return np.array([k0 * e1, -k0 * e1]), np.array([0.5, 0.5], complex)
+    m = 256
+    s = (np.arange(m) + 0.5) / m * tex.pitch
+    f1 = _raised_cosine_bumps(s, tex.pitch, tex.wire_width)
+    c = np.fft.fft2(np.maximum(f1[:, None], f1[None, :])) / m ** 2
+    n = np.arange(-order, order + 1)
+    nn, mm = np.meshgrid(n, n, indexing="ij")
+    keep = (nn != 0) | (mm != 0)
+    coef = c[nn[keep] % m, mm[keep] % m]
+    kv = k0 * (nn[keep, None] * e1 + mm[keep, None] * e2)
+    return kv, coef
+
+
+def heard_by_both_pairs(rec, scene, margin_db: float = HEARD_DB) -> list[bool]:
+    """For each line that can fix a direction (a grating's wavevector; a net's two fundamentals and their sum
+    and difference, pairwise non-parallel): whether both deep probes hold it ``margin_db`` above the noise
+    in its Welch bin, by the Gaussian window's line responses (x pair: W(ky) G(|kx|; d, a), y pair alike;
+    ``model.r_curve.log_g``) and the simulator's noise (the same sigma on every channel, sigma^2 = P_ref
+    10^(-SNR/10), P_ref the larger shallow power). A line that one pair alone hears gives one wavevector
+    component: its direction is unknown. [] for random textures."""
+    if not isinstance(scene.texture, (Grating, WireNet)):
+        return []
+    d1, d2 = (float(d) for d in rec.depths)
+    a = scene.a
+    kv, coef = _line_coefficients(scene)
+
+    def response(depth, along, across):      # |amplitude| of a line probe's response, up to a common factor
+        g = np.asarray(r_curve.log_g(np.abs(along), depth, a), float)
+        return np.exp(g - a * a * across ** 2 / 6.0)
+
+    power = np.abs(coef) ** 2
+    shallow = max(float(np.sum(power * response(d1, kv[:, 0], kv[:, 1]) ** 2)),
+                  float(np.sum(power * response(d1, kv[:, 1], kv[:, 0]) ** 2)))
+    noise_bin = shallow * 10.0 ** (-scene.snr_db / 10.0) / default_nperseg(int(DURATION * FS))
+    k0 = 2 * np.pi / scene.texture.pitch
+    e1 = np.array([np.cos(scene.texture.angle), np.sin(scene.texture.angle)])
+    e2 = np.array([-e1[1], e1[0]])
+    targets = [(1, 0)] if isinstance(scene.texture, Grating) else [(1, 0), (0, 1), (1, 1), (1, -1)]
+    out = []
+    for n, m in targets:
+        k = k0 * (n * e1 + m * e2)
+        j = int(np.argmin(np.sum((kv - k) ** 2, axis=1)))
+        deep = [power[j] * response(d2, k[0], k[1]) ** 2, power[j] * response(d2, k[1], k[0]) ** 2]
+        out.append(bool(min(deep) >= noise_bin * 10.0 ** (margin_db / 10.0)))
+    return out
+
+
+def determinable(row) -> bool | None:
+    """Whether the probes hold what the issue's target asks for: a grating's line heard by both pairs (its
+    normal speed), or two non-parallel lines of a net heard by both pairs (both speeds). None: other kinds."""
+    heard = row.get("heard_2d")
+    if not heard:
+        return None
+    return heard[0] if row["kind"] == "grating" else sum(heard) >= 2
+
+
 def run_kind(kind: str, n: int, verbose: bool = True) -> list[dict]:
     rows = []
     nperseg = default_nperseg(int(DURATION * FS))
@@ -134,6 +212,7 @@ def run_kind(kind: str, n: int, verbose: bool = True) -> list[dict]:
                **{k: getattr(res, k) for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi", "message",
                                                "texture", "v_normal", "v_normal_err", "normal_angle")},
                "status": str(res.status), "v_normal_true": _normal_speeds(scene),
+               "heard_2d": heard_by_both_pairs(rec, scene),
                "scipy": dict(zip(("vx", "vx_err", "vy", "vy_err", "a", "a_err"),
                                  (None if not np.isfinite(v) else float(v) for v in sp)))}
         rows.append(row)
@@ -177,6 +256,12 @@ def summarize(rows: list[dict]) -> dict:
     out["a_5pct"] = share(lambda r: r["status"] == "ok" and _dev(r, "a") is not None
                           and _dev(r, "a") <= 0.05 * r["a_true"], rows)
     out["v_normal_3pct"] = share(lambda r: (_vn_dev(r) or 1.0) <= 0.03, rows) if rows and rows[0]["v_normal_true"] else None
+    det = [r for r in rows if determinable(r)]
+    out["determinable"] = share(lambda r: bool(determinable(r)), rows) if rows and rows[0].get("heard_2d") else None
+    out["n_determinable"] = len(det)
+    out["both_speeds_3pct_determinable"] = share(lambda r: r["status"] == "ok" and all(
+        _dev(r, k) is not None and _dev(r, k) <= 0.03 * r["speed"] for k in ("vx", "vy")), det)
+    out["v_normal_3pct_determinable"] = share(lambda r: (_vn_dev(r) or 1.0) <= 0.03, det)
     out["speeds_undetermined"] = share(lambda r: r["vx"] is None and r["vy"] is None, rows)
     for name in ("vx", "vy", "a"):
         pool = [r for r in ok if r[name] is not None and r[name + "_err"]]
@@ -206,14 +291,19 @@ def _pct(x):
 
 def table(summary: dict) -> str:
     lines = ["| texture | scenes | statuses | model chosen | both speeds within 3 % | a within 5 % | "
-             "speed along the normal within 3 % | 1-sigma cover vx / vy / a (ok) | confident wrong | fit s | "
-             "scipy: both speeds within 3 % |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "speed along the normal within 3 % | probes determine it | within 3 % where determined | "
+             "1-sigma cover vx / vy / a (ok) | confident wrong | fit s | scipy: both speeds within 3 % |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, s in summary.items():
         st = ", ".join(f"{k} {v}" for k, v in sorted(s["status"].items()))
         tx = ", ".join(f"{k} {v}" for k, v in sorted(s["texture"].items()))
         cover = " / ".join(_pct(s[k + "_cover1_ok"]) for k in ("vx", "vy", "a"))
+        det, within = "-", "-"
+        if s.get("determinable") is not None:
+            det = f"{s['n_determinable']} of {s['n']}"
+            within = _pct(s["v_normal_3pct_determinable" if kind == "grating" else "both_speeds_3pct_determinable"])
         lines.append(f"| {kind} | {s['n']} | {st} | {tx} | {_pct(s['both_speeds_3pct'])} | {_pct(s['a_5pct'])} | "
-                     f"{_pct(s['v_normal_3pct'])} | {cover} | {_pct(s['confident_wrong_share'])} | "
+                     f"{_pct(s['v_normal_3pct'])} | {det} | {within} | {cover} | {_pct(s['confident_wrong_share'])} | "
                      f"{s['fit_s_median']:.2f} | {_pct(s['scipy_both_speeds_3pct'])} |")
     return "\n".join(lines)
 
@@ -248,6 +338,8 @@ def main(argv=None):
     ap.add_argument("--scenes", type=int, default=20, help="scenes per kind")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
     ap.add_argument("--cache", type=Path, default=None, help="folder to keep the simulated recordings in (reused)")
+    ap.add_argument("--summarize", type=Path, default=None,
+                    help="re-table a saved textures.json (lines heard by both pairs recomputed from --cache)")
     args = ap.parse_args(argv)
     global _CACHE
     _CACHE = args.cache
@@ -258,12 +350,19 @@ def main(argv=None):
     if bad or args.scenes < 1:
         raise SystemExit(f"error: unknown kinds {bad} (expected {', '.join(KINDS)}) or --scenes < 1")
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = {k: run_kind(k, args.scenes) for k in kinds}
-    summary = {k: summarize(r) for k, r in rows.items()}
     import jaxlib
 
     machine = (f"{platform.machine()}, {platform.system()}, Python {platform.python_version()}, jax {jax.__version__} "
                f"(jaxlib {jaxlib.__version__}), numpy {np.__version__}")
+    if args.summarize is not None:
+        saved = json.loads(args.summarize.read_text())
+        machine, rows = saved["machine"], saved["rows"]
+        for kind, kind_rows in rows.items():
+            for row, scene in zip(kind_rows, scenes(kind, len(kind_rows))):
+                row["heard_2d"] = heard_by_both_pairs(_simulate(scene), scene)
+    else:
+        rows = {k: run_kind(k, args.scenes) for k in kinds}
+    summary = {k: summarize(r) for k, r in rows.items()}
     text = table(summary)
     print(f"\nmachine: {machine}\n\n{text}")
     (args.out / "textures.json").write_text(json.dumps({"machine": machine, "summary": summary, "rows": rows},

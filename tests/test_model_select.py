@@ -266,6 +266,42 @@ def test_windows_the_data_cannot_tell_apart_are_averaged():
     assert held.vy == 0.0 and held["vy"].upper == 0.001            # a speed held at 0 stays held
 
 
+def test_texture_models_the_data_barely_tell_apart_are_averaged():
+    """A directional lobe that AIC does not keep by a margin of TEXTURE_AVERAGED still enters: the isotropic
+    fit is kept, the directional one returned with the isotropic Akaike weight; a decisive lobe is kept alone."""
+    import types
+
+    from tactile_jax.inference.forward import INDEX, N_PHYS
+    from tactile_jax.status import FIT_CODES, Status
+
+    n = N_PHYS + 4
+    free = np.ones(n, bool)
+    free[[INDEX["aniso_p"], INDEX["aniso_q"]]] = False
+    iso = types.SimpleNamespace(status=FIT_CODES.index(Status.OK), free=free, theta=np.zeros(n), n_data=400.0,
+                                chi2=400.0, redchi=1.0)
+
+    def directional(drop):
+        def refit(theta, fr):
+            return types.SimpleNamespace(theta=np.full(n, 0.1), free=fr, chi2=400.0 - drop, redchi=(400.0 - drop) / 390)
+        return refit
+
+    close = ms.choose_texture(iso, directional(3.0))         # AIC: -3 for the lobe against +4 for its parameters
+    margin = 4.0 - 3.0 / (397.0 / (400.0 - n))                 # the quasi-likelihood scale: directional chi2 / dof
+    assert close.texture == "isotropic" and close.summary is iso and close.other is not None
+    assert close.margin == pytest.approx(margin, rel=1e-6)
+    assert close.weight == pytest.approx(1.0 / (1.0 + np.exp(-0.5 * margin)))
+    assert "averaged over the isotropic and directional models" in close.note
+    decisive = ms.choose_texture(iso, directional(60.0))
+    assert decisive.texture == "directional" and decisive.other is None and decisive.weight == 1.0
+    assert decisive.margin > ms.TEXTURE_AVERAGED and decisive.note.startswith("directional texture (AIC margin")
+    res, other = FitResult(), FitResult()
+    res.set("vx", value=0.0200, err=0.0002)
+    other.set("vx", value=0.0206, err=0.0003)
+    ms.average_models(res, other, 0.75)
+    assert res.vx == pytest.approx(0.75 * 0.0200 + 0.25 * 0.0206)
+    assert res.vx_err == pytest.approx(np.sqrt(0.75 * (0.0002 ** 2 + 0.00015 ** 2) + 0.25 * (0.0003 ** 2 + 0.00045 ** 2)))
+
+
 def test_window_needed_is_a_likelihood_ratio_test():
     """A loosely measured a is tested against a -> infinity; the slip refit decides, at 2.71 x the scale."""
     import types

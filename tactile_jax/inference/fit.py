@@ -312,7 +312,9 @@ class Refined(NamedTuple):
     program), the window, texture and slip-direction models with their margins and what to say of them (``notes``,
     for the message), warnings (more solves), where the data cannot tell the windows apart the other
     window's summary and the kept window's weight (``select.average_windows``; else None and 1), and
-    where a minor speed is held at 0 the fit with it free (``oblique``: its profile bounds the speed)."""
+    where a minor speed is held at 0 the fit with it free (``oblique``: its profile bounds the speed);
+    where the texture models are close the other texture model's summary and the kept one's weight
+    (``select.average_models``; else None and 1)."""
 
     summary: Summary
     settings: Settings
@@ -327,6 +329,8 @@ class Refined(NamedTuple):
     direction: str = "oblique"
     direction_margin: float | None = None
     oblique: Summary | None = None
+    texture_other: Summary | None = None
+    texture_weight: float = 1.0
 
 
 def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> Refined:
@@ -369,16 +373,18 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
                     s = fresh
         notes.append(note)
     texture, texture_margin = model_select.texture_name(s.free), None
+    texture_other, texture_weight = None, 1.0
     if options.texture is None:
-        s, texture, texture_margin, note = model_select.choose_texture(s, _Refitter(rec, settings),
-                                                                       bin_factor=bin_factor)
+        s, texture, texture_margin, note, texture_other, texture_weight = model_select.choose_texture(
+            s, _Refitter(rec, settings), bin_factor=bin_factor)
         notes.append(note)
     oblique = s
     s, direction, direction_margin, note = model_select.choose_direction(s, _settled_refit(rec, settings),
                                                                          options.direction)
     notes.append(note)
     return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
-                   tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique)
+                   tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique,
+                   texture_other, texture_weight)
 
 
 def explored(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, str]:
@@ -402,10 +408,16 @@ def _settled_refit(rec: Record, settings: Settings):
 
 def averaged(res: FitResult, refined: Refined, *, velocity=None, curvature_radius=None) -> FitResult:
     """``res`` (of ``refined``'s summary) with vx, vy and a averaged over both windows where the data cannot
-    tell them apart (``select.average_windows``); ``fit`` and ``batch`` both call this."""
-    if refined.other is not None and res.status not in (Status.NO_BAND, Status.FAILED):
+    tell them apart (``select.average_windows``), then over both texture models where they are close
+    (``select.average_models``); ``fit`` and ``batch`` both call this."""
+    if res.status in (Status.NO_BAND, Status.FAILED):
+        return res
+    if refined.other is not None:
         other = result_from_summary(refined.other, velocity=velocity, curvature_radius=curvature_radius)
         model_select.average_windows(res, other, refined.weight, refined.window)
+    if refined.texture_other is not None:
+        other = result_from_summary(refined.texture_other, velocity=velocity, curvature_radius=curvature_radius)
+        model_select.average_models(res, other, refined.texture_weight)
     return res
 
 

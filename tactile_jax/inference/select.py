@@ -59,9 +59,11 @@ __all__ = [
     "select",
     "texture_name",
     "choose_texture",
+    "TextureChoice",
     "choose_window",
     "WindowChoice",
     "average_windows",
+    "average_models",
     "WINDOW_DECISIVE",
     "TEXTURES",
     "DIRECTIONS",
@@ -88,6 +90,8 @@ AXIS_FLOOR = 1e-3
 WINDOW_DECISIVE = 6.0
 #: a poor isotropic fit is explained by a directional lobe when that brings its reduced chi-square this low
 DIRECTIONAL_EXPLAINS = 1.5
+#: below this AIC margin the texture models are averaged by Akaike weight (the loser's weight above 0.7 %)
+TEXTURE_AVERAGED = 10.0
 #: ``window_needed`` tests a contact radius measured to worse than this relative error
 WINDOW_TEST_REL_ERR = 0.05
 #: chi2 rise (in units of the covariance scale) below which a -> infinity is not rejected: one-sided 95 %
@@ -253,7 +257,20 @@ def texture_name(free) -> str:
     return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
 
 
-def choose_texture(summary, refit, *, bin_factor: float = 1.0):
+class TextureChoice(NamedTuple):
+    """``choose_texture``'s outcome: the kept summary, its texture model ("isotropic" or "directional"), the
+    AIC margin (the loser's minus the winner's; None where not compared) and the note; below
+    ``TEXTURE_AVERAGED`` the other model's summary and the kept model's Akaike weight (else None and 1)."""
+
+    summary: Any
+    texture: str
+    margin: float | None
+    note: str
+    other: Any = None
+    weight: float = 1.0
+
+
+def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> TextureChoice:
     """The texture model of one record: the isotropic fit ``summary`` against the directional one.
 
     refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
@@ -262,18 +279,19 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
     fit's reduced chi-square, so that a misfit it does not remove is not read as evidence), and
     only if the lobe describes the spectra (reduced chi-square at most ``DIRECTIONAL_EXPLAINS``): a
     lumpy spectrum of few discrete modes is not a directional texture, and two more parameters
-    fitted to its lumps would turn a poor fit into a confident one.
-    Returns (summary, name, margin in AIC units (the loser's minus the winner's), note).
+    fitted to its lumps would turn a poor fit into a confident one. Where the margin is below
+    ``TEXTURE_AVERAGED`` the result averages both models' estimates by their Akaike weights
+    (``average_models``): a weak lobe that AIC does not keep still moves the minor speed by about its error.
     """
     if not _compared(summary):
-        return summary, "isotropic", None, ""
+        return TextureChoice(summary, "isotropic", None, "")
     free = np.asarray(summary.free, bool)
     fr = free.copy()
     fr[list(_I_ANISO)] = True
     directional = refit(np.asarray(summary.theta), fr)
     n_data = float(summary.n_data)
     if not np.isfinite(float(directional.chi2)):
-        return summary, "isotropic", None, "the directional texture model did not fit"
+        return TextureChoice(summary, "isotropic", None, "the directional texture model did not fit")
     scale = float(directional.chi2) / max(n_data - fr.sum(), 1.0)
     ic_iso = information_criterion(float(summary.chi2), free.sum(), n_data, bin_factor=bin_factor, scale=scale,
                                     kind="aic")
@@ -283,15 +301,23 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0):
         poor = float(summary.redchi) > POOR_FIT_REDCHI and float(directional.redchi) < float(summary.redchi)
         note = (f"a directional lobe lowers the reduced chi-square only to {float(directional.redchi):.2f}: it "
                 "does not describe these spectra" if poor else "")
-        return summary, "isotropic", None, note
-    if ic_dir < ic_iso:
-        p, q = (float(directional.theta[i]) for i in _I_ANISO)
-        contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
-        angle = 0.5 * np.degrees(np.arctan2(q, p)) % 180.0
-        note = (f"directional texture (AIC margin {ic_iso - ic_dir:.1f} over isotropic): power along "
-                f"{angle:.0f} deg, anisotropy {(1 + contrast) / (1 - contrast):.2f}")
-        return directional, "directional", ic_iso - ic_dir, note
-    return summary, "isotropic", ic_dir - ic_iso, ""
+        return TextureChoice(summary, "isotropic", None, note)
+    p, q = (float(directional.theta[i]) for i in _I_ANISO)
+    contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
+    lobe = (f"power along {0.5 * np.degrees(np.arctan2(q, p)) % 180.0:.0f} deg, anisotropy "
+            f"{(1 + contrast) / (1 - contrast):.2f}")
+    kept, other, name, margin = ((directional, summary, "directional", ic_iso - ic_dir) if ic_dir < ic_iso else
+                                 (summary, directional, "isotropic", ic_dir - ic_iso))
+    if margin >= TEXTURE_AVERAGED:
+        note = f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe}" if name == "directional" else ""
+        return TextureChoice(kept, name, margin, note)
+    weight = 1.0 / (1.0 + np.exp(-0.5 * margin))
+    w_dir = weight if name == "directional" else 1.0 - weight
+    note = (f"{name} texture by an AIC margin of only {margin:.1f}"
+            + (f" ({lobe})" if name == "directional" else "")
+            + f": vx, vy and a averaged over the isotropic and directional models (Akaike weights "
+            f"{1 - w_dir:.2f} / {w_dir:.2f}), their difference in the errors")
+    return TextureChoice(kept, name, margin, note, other, float(weight))
 
 
 def direction_name(free) -> str:
@@ -399,13 +425,19 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Window
 
 
 def average_windows(res, other, weight: float, window: str) -> None:
-    """Where the data cannot tell the contact windows apart: ``res``'s vx, vy and a (a ``FitResult`` of
-    ``window``) become the average with ``other``'s (the other window's) by the Akaike weight ``weight``
-    of ``window``, each error sqrt(sum_i w_i (err_i^2 + (v_i - mean)^2)) (model averaging), and a minor
-    speed's interval and bounds are widened to hold the other window's value shifted alike. The other
-    window's radius enters as ``window``'s radius of the same second moment (``HERTZ_PER_GAUSS``); the
-    contact depth follows a. A fixed quantity (a known speed, or one the slip direction holds at 0) stays."""
-    to_mine = HERTZ_PER_GAUSS if window == "hertz" else 1.0 / HERTZ_PER_GAUSS    # other's a -> window's a
+    """Where the data cannot tell the contact windows apart: ``average_models`` of ``res`` (a ``FitResult`` of
+    ``window``, of Akaike weight ``weight``) and ``other`` (the other window's), the other window's radius
+    entering as ``window``'s radius of the same second moment (``HERTZ_PER_GAUSS``)."""
+    average_models(res, other, weight, a_factor=HERTZ_PER_GAUSS if window == "hertz" else 1.0 / HERTZ_PER_GAUSS)
+
+
+def average_models(res, other, weight: float, *, a_factor: float = 1.0) -> None:
+    """``res``'s vx, vy and a become the average with ``other``'s (another model's ``FitResult``) by the Akaike
+    weight ``weight`` of ``res``'s model, each error sqrt(sum_i w_i (err_i^2 + (v_i - mean)^2)) (model
+    averaging), and a minor speed's interval and bounds are widened to hold the other model's value shifted
+    alike. ``other``'s a enters times ``a_factor``; the contact depth follows a. A fixed quantity (a known
+    speed, or one the slip direction holds at 0) stays."""
+    to_mine = a_factor
     for q in ("vx", "vy", "a"):
         mine, theirs = res[q], other[q]
         if mine.value is None or theirs.value is None or mine.fixed:     # a held or known speed stays
