@@ -287,12 +287,12 @@ def test_texture_models_the_data_barely_tell_apart_are_averaged():
 
     close = ms.choose_texture(iso, directional(3.0))         # AIC: -3 for the lobe against +4 for its parameters
     margin = 4.0 - 3.0 / (397.0 / (400.0 - n))                 # the quasi-likelihood scale: directional chi2 / dof
-    assert close.texture == "isotropic" and close.summary is iso and close.other is not None
+    assert close.name == "isotropic" and close.summary is iso and close.other is not None
     assert close.margin == pytest.approx(margin, rel=1e-6)
     assert close.weight == pytest.approx(1.0 / (1.0 + np.exp(-0.5 * margin)))
     assert "averaged over the isotropic and directional models" in close.note
     decisive = ms.choose_texture(iso, directional(60.0))
-    assert decisive.texture == "directional" and decisive.other is None and decisive.weight == 1.0
+    assert decisive.name == "directional" and decisive.other is None and decisive.weight == 1.0
     assert decisive.margin > ms.TEXTURE_AVERAGED and decisive.note.startswith("directional texture (AIC margin")
     res, other = FitResult(), FitResult()
     res.set("vx", value=0.0200, err=0.0002)

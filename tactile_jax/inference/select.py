@@ -59,9 +59,8 @@ __all__ = [
     "select",
     "texture_name",
     "choose_texture",
-    "TextureChoice",
     "choose_window",
-    "WindowChoice",
+    "Choice",
     "average_windows",
     "average_models",
     "WINDOW_DECISIVE",
@@ -257,20 +256,22 @@ def texture_name(free) -> str:
     return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
 
 
-class TextureChoice(NamedTuple):
-    """``choose_texture``'s outcome: the kept summary, its texture model ("isotropic" or "directional"), the
-    AIC margin (the loser's minus the winner's; None where not compared) and the note; below
-    ``TEXTURE_AVERAGED`` the other model's summary and the kept model's Akaike weight (else None and 1)."""
+class Choice(NamedTuple):
+    """A model choice for one record (``choose_window``, ``choose_texture``): the kept summary, the kept
+    model's name, the margin (``choose_window``: chi-square units, positive favours the Hertz disk;
+    ``choose_texture``: AIC, the loser's minus the winner's; None where not compared) and the note; where the
+    data barely tell the models apart, the other model's summary and the kept model's Akaike weight (for
+    ``average_models``; else None and 1)."""
 
     summary: Any
-    texture: str
+    name: str
     margin: float | None
     note: str
     other: Any = None
     weight: float = 1.0
 
 
-def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> TextureChoice:
+def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     """The texture model of one record: the isotropic fit ``summary`` against the directional one.
 
     refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
@@ -284,14 +285,14 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> TextureChoice:
     (``average_models``): a weak lobe that AIC does not keep still moves the minor speed by about its error.
     """
     if not _compared(summary):
-        return TextureChoice(summary, "isotropic", None, "")
+        return Choice(summary, "isotropic", None, "")
     free = np.asarray(summary.free, bool)
     fr = free.copy()
     fr[list(_I_ANISO)] = True
     directional = refit(np.asarray(summary.theta), fr)
     n_data = float(summary.n_data)
     if not np.isfinite(float(directional.chi2)):
-        return TextureChoice(summary, "isotropic", None, "the directional texture model did not fit")
+        return Choice(summary, "isotropic", None, "the directional texture model did not fit")
     scale = float(directional.chi2) / max(n_data - fr.sum(), 1.0)
     ic_iso = information_criterion(float(summary.chi2), free.sum(), n_data, bin_factor=bin_factor, scale=scale,
                                     kind="aic")
@@ -301,7 +302,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> TextureChoice:
         poor = float(summary.redchi) > POOR_FIT_REDCHI and float(directional.redchi) < float(summary.redchi)
         note = (f"a directional lobe lowers the reduced chi-square only to {float(directional.redchi):.2f}: it "
                 "does not describe these spectra" if poor else "")
-        return TextureChoice(summary, "isotropic", None, note)
+        return Choice(summary, "isotropic", None, note)
     p, q = (float(directional.theta[i]) for i in _I_ANISO)
     contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
     lobe = (f"power along {0.5 * np.degrees(np.arctan2(q, p)) % 180.0:.0f} deg, anisotropy "
@@ -310,14 +311,14 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> TextureChoice:
                                  (summary, directional, "isotropic", ic_dir - ic_iso))
     if margin >= TEXTURE_AVERAGED:
         note = f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe}" if name == "directional" else ""
-        return TextureChoice(kept, name, margin, note)
+        return Choice(kept, name, margin, note)
     weight = 1.0 / (1.0 + np.exp(-0.5 * margin))
     w_dir = weight if name == "directional" else 1.0 - weight
     note = (f"{name} texture by an AIC margin of only {margin:.1f}"
             + (f" ({lobe})" if name == "directional" else "")
             + f": vx, vy and a averaged over the isotropic and directional models (Akaike weights "
             f"{1 - w_dir:.2f} / {w_dir:.2f}), their difference in the errors")
-    return TextureChoice(kept, name, margin, note, other, float(weight))
+    return Choice(kept, name, margin, note, other, float(weight))
 
 
 def direction_name(free) -> str:
@@ -369,20 +370,7 @@ def choose_direction(summary, refit, forced: str | None = None):
     return summary, "oblique", -margin, ""
 
 
-class WindowChoice(NamedTuple):
-    """``choose_window``'s outcome: the kept summary, its window ("hertz" or "gaussian"), the margin
-    (positive favours the Hertz disk; None where not compared) and the note; where the data cannot tell the
-    windows apart, the other window's summary and the kept window's Akaike weight (else None and 1)."""
-
-    summary: Any
-    window: str
-    margin: float | None
-    note: str
-    other: Any = None
-    weight: float = 1.0
-
-
-def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> WindowChoice:
+def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Choice:
     """The contact window of one record: the Hertz fit ``summary`` against the Gaussian window.
 
     refit_gaussian(theta, free) -> ``core.Summary``: the Gaussian window's program from ``theta``. It
@@ -396,19 +384,19 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Window
     (``average_windows``) by their Akaike weights, exp(-margin / 2) relative.
     """
     if not _compared(summary):
-        return WindowChoice(summary, "hertz", None, "")
+        return Choice(summary, "hertz", None, "")
     theta = np.asarray(summary.theta).copy()
     theta[_I_A] -= np.log(HERTZ_PER_GAUSS)
     gauss = refit_gaussian(theta, np.asarray(summary.free, bool))
     chi_h, chi_g = float(summary.chi2), float(gauss.chi2)
     if not np.isfinite(chi_g):
-        return WindowChoice(summary, "hertz", None, "the Gaussian window did not fit")
+        return Choice(summary, "hertz", None, "the Gaussian window did not fit")
     scale = max(float(bin_factor), 1.0) * max(min(float(summary.redchi), float(gauss.redchi)), 1.0)
     margin = (chi_g - chi_h) / scale
     if margin >= WINDOW_DECISIVE:
-        return WindowChoice(summary, "hertz", margin, "")
+        return Choice(summary, "hertz", margin, "")
     if margin <= -WINDOW_DECISIVE:
-        return WindowChoice(gauss, "gaussian", -margin, f"Gaussian contact window (chi-square margin {-margin:.1f} "
+        return Choice(gauss, "gaussian", -margin, f"Gaussian contact window (chi-square margin {-margin:.1f} "
                                                         "over the Hertz disk)")
     keep_gauss = float(summary.redchi) > POOR_FIT_REDCHI >= float(gauss.redchi)
     kept, other, name = (gauss, summary, "Hertz") if keep_gauss else (summary, gauss, "Gaussian")
@@ -420,7 +408,7 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Window
             f"{'Gaussian' if keep_gauss else 'Hertz'} window's fit is the one shown"
             f"{', as only it describes the spectra' if keep_gauss else ''}; the {name} window alone gives "
             f"|vx| = {100 * vx:.4g}, |vy| = {100 * vy:.4g} cm/s, a = {1e3 * a:.4g} mm")
-    return WindowChoice(kept, "gaussian" if keep_gauss else "hertz", margin, note, other,
+    return Choice(kept, "gaussian" if keep_gauss else "hertz", margin, note, other,
                         float(1.0 - w_hertz if keep_gauss else w_hertz))
 
 
