@@ -108,6 +108,7 @@ def test_no_band_is_reported_not_raised():
     assert "no coherent texture line or band" in res.message
 
 
+@pytest.mark.slow
 def test_a_grating_gives_its_normal_speed_and_leaves_the_ridge_component_undetermined():
     """A grating heard by both pairs: the smooth models find no band; the line model gives the speed along
     the lines' normal, the normal's angle and a, and vx, vy undetermined (the aperture problem)."""
