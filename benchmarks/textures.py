@@ -130,8 +130,9 @@ def _normal_speeds(scene) -> list[float]:
 
 
 def _line_coefficients(scene, order: int = 16):
-    """The texture's lines: wavevectors (n, 2) rad/m and complex amplitudes (n,) of u0 = sum c e^{i k.r}, from
-    one periodic cell (a sine grating: its two half-amplitude terms; a net: a 2-D FFT of max(f1, f2))."""
+    """The texture's lines: their orders (n, m) (L, 2) on the basis (e1, e2) (a grating: e1 alone), wavevectors
+    (L, 2) rad/m and complex amplitudes (L,) of u0 = sum c e^{i k.r}, from one periodic cell (a sine grating:
+    its two half-amplitude terms; a net: a 2-D FFT of max(f1, f2))."""
     tex = scene.texture
     k0 = 2 * np.pi / tex.pitch
     e1 = np.array([np.cos(tex.angle), np.sin(tex.angle)])
@@ -139,7 +140,8 @@ def _line_coefficients(scene, order: int = 16):
     if isinstance(tex, Grating):
         if tex.profile != "sine":
             raise ValueError("heard_by_both_pairs models sine gratings only")
-        return np.array([k0 * e1, -k0 * e1]), np.array([0.5, 0.5], complex)
+        orders = np.array([[1, 0], [-1, 0]])
+        return orders, k0 * orders[:, :1] * e1, np.array([0.5, 0.5], complex)
     m = 256
     s = (np.arange(m) + 0.5) / m * tex.pitch
     f1 = _raised_cosine_bumps(s, tex.pitch, tex.wire_width)
@@ -147,9 +149,8 @@ def _line_coefficients(scene, order: int = 16):
     n = np.arange(-order, order + 1)
     nn, mm = np.meshgrid(n, n, indexing="ij")
     keep = (nn != 0) | (mm != 0)
-    coef = c[nn[keep] % m, mm[keep] % m]
-    kv = k0 * (nn[keep, None] * e1 + mm[keep, None] * e2)
-    return kv, coef
+    orders = np.stack([nn[keep], mm[keep]], 1)
+    return orders, k0 * (orders[:, :1] * e1 + orders[:, 1:] * e2), c[orders[:, 0] % m, orders[:, 1] % m]
 
 
 def heard_by_both_pairs(rec, scene, margin_db: float = HEARD_DB) -> list[bool]:
@@ -163,7 +164,7 @@ def heard_by_both_pairs(rec, scene, margin_db: float = HEARD_DB) -> list[bool]:
         return []
     d1, d2 = (float(d) for d in rec.depths)
     a = scene.a
-    kv, coef = _line_coefficients(scene)
+    orders, kv, coef = _line_coefficients(scene)
 
     def response(depth, along, across):      # |amplitude| of a line probe's response, up to a common factor
         g = np.asarray(r_curve.log_g(np.abs(along), depth, a), float)
@@ -173,16 +174,12 @@ def heard_by_both_pairs(rec, scene, margin_db: float = HEARD_DB) -> list[bool]:
     shallow = max(float(np.sum(power * response(d1, kv[:, 0], kv[:, 1]) ** 2)),
                   float(np.sum(power * response(d1, kv[:, 1], kv[:, 0]) ** 2)))
     noise_bin = shallow * 10.0 ** (-scene.snr_db / 10.0) / default_nperseg(int(DURATION * FS))
-    k0 = 2 * np.pi / scene.texture.pitch
-    e1 = np.array([np.cos(scene.texture.angle), np.sin(scene.texture.angle)])
-    e2 = np.array([-e1[1], e1[0]])
     targets = [(1, 0)] if isinstance(scene.texture, Grating) else [(1, 0), (0, 1), (1, 1), (1, -1)]
     out = []
-    for n, m in targets:
-        k = k0 * (n * e1 + m * e2)
-        j = int(np.argmin(np.sum((kv - k) ** 2, axis=1)))
-        deep = [power[j] * response(d2, k[0], k[1]) ** 2, power[j] * response(d2, k[1], k[0]) ** 2]
-        out.append(bool(min(deep) >= noise_bin * 10.0 ** (margin_db / 10.0)))
+    for nm in targets:
+        j = int(np.flatnonzero((orders == nm).all(1))[0])
+        deep = power[j] * np.array([response(d2, kv[j, 0], kv[j, 1]), response(d2, kv[j, 1], kv[j, 0])]) ** 2
+        out.append(bool(deep.min() >= noise_bin * 10.0 ** (margin_db / 10.0)))
     return out
 
 

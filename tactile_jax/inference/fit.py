@@ -355,9 +355,12 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
         notes.append(note)
     if options.window is None and settings.hertz is not None:
         gauss = settings._replace(hertz=None)
-        choose = lambda s_h: model_select.choose_window(s_h, _settled_refit(rec, gauss), bin_factor=bin_factor)  # noqa: E731
+
+        def choose(s_h):
+            return model_select.choose_window(s_h, _settled_refit(rec, gauss), bin_factor=bin_factor)
+
         chosen = choose(s)
-        if int(chosen[0].status) in _POOR:
+        if int(chosen.summary.status) in _POOR:
             s, note = explored(rec, settings, s)
             notes.append(note)
             if note:

@@ -90,10 +90,9 @@ def hertz_table_residuals(theta, args):
     """``hertz_residuals`` from the Hertz table (``model.hertz``) in place of quadrature: ``args`` end with the
     table's coefficients (data, as ``core.Settings.hertz`` holds them). The joint fit's Hertz starts use it:
     one table lookup per node, where the quadrature's 4 panels made two pair fits cost 1.6 s."""
-    coef = args[-1]
+    table = hertz_mod.table_of(args[-1])
 
     def log_r(alpha, d1, d2, a):
-        table = hertz_mod.table_of(coef)
         k = jnp.stack([alpha, alpha])
         # a usable bin has kappa = alpha a far below the table's edge (148): no far field to compile (3 s of 29)
         hn = hertz_mod.hertz_hn(k, jnp.zeros_like(k), jnp.stack([d1, d2]), a, table, depth_index=(0, 1),

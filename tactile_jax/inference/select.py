@@ -256,6 +256,11 @@ def texture_name(free) -> str:
     return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
 
 
+def _akaike_weight(margin: float) -> float:
+    """The Akaike weight of the one of two models ahead by ``margin`` (AIC or chi-square units)."""
+    return 1.0 / (1.0 + np.exp(-0.5 * margin))
+
+
 class Choice(NamedTuple):
     """A model choice for one record (``choose_window``, ``choose_texture``): the kept summary, the kept
     model's name, the margin (``choose_window``: chi-square units, positive favours the Hertz disk;
@@ -312,7 +317,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     if margin >= TEXTURE_AVERAGED:
         note = f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe}" if name == "directional" else ""
         return Choice(kept, name, margin, note)
-    weight = 1.0 / (1.0 + np.exp(-0.5 * margin))
+    weight = _akaike_weight(margin)
     w_dir = weight if name == "directional" else 1.0 - weight
     note = (f"{name} texture by an AIC margin of only {margin:.1f}"
             + (f" ({lobe})" if name == "directional" else "")
@@ -397,10 +402,10 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Choice
         return Choice(summary, "hertz", margin, "")
     if margin <= -WINDOW_DECISIVE:
         return Choice(gauss, "gaussian", -margin, f"Gaussian contact window (chi-square margin {-margin:.1f} "
-                                                        "over the Hertz disk)")
+                                                  "over the Hertz disk)")
     keep_gauss = float(summary.redchi) > POOR_FIT_REDCHI >= float(gauss.redchi)
     kept, other, name = (gauss, summary, "Hertz") if keep_gauss else (summary, gauss, "Gaussian")
-    w_hertz = 1.0 / (1.0 + np.exp(-0.5 * margin))
+    w_hertz = _akaike_weight(margin)
     vx, vy, a = np.exp(np.asarray(other.theta)[[_I["log_vx"], _I["log_vy"], _I_A]])
     note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): vx, vy and a are the "
             f"average over both windows (Akaike weights: Hertz {w_hertz:.2f}, Gaussian {1 - w_hertz:.2f}; the other "
@@ -409,7 +414,7 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Choice
             f"{', as only it describes the spectra' if keep_gauss else ''}; the {name} window alone gives "
             f"|vx| = {100 * vx:.4g}, |vy| = {100 * vy:.4g} cm/s, a = {1e3 * a:.4g} mm")
     return Choice(kept, "gaussian" if keep_gauss else "hertz", margin, note, other,
-                        float(1.0 - w_hertz if keep_gauss else w_hertz))
+                  float(1.0 - w_hertz if keep_gauss else w_hertz))
 
 
 def average_windows(res, other, weight: float, window: str) -> None:
@@ -425,12 +430,11 @@ def average_models(res, other, weight: float, *, a_factor: float = 1.0) -> None:
     averaging), and a minor speed's interval and bounds are widened to hold the other model's value shifted
     alike. ``other``'s a enters times ``a_factor``; the contact depth follows a. A fixed quantity (a known
     speed, or one the slip direction holds at 0) stays."""
-    to_mine = a_factor
     for q in ("vx", "vy", "a"):
         mine, theirs = res[q], other[q]
         if mine.value is None or theirs.value is None or mine.fixed:     # a held or known speed stays
             continue
-        f = to_mine if q == "a" else 1.0
+        f = a_factor if q == "a" else 1.0
         v0, e0 = mine.value, mine.err or 0.0
         v1, e1 = theirs.value * f, (theirs.err or 0.0) * f
         mean = weight * v0 + (1.0 - weight) * v1
