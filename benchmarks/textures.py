@@ -207,7 +207,8 @@ def run_kind(kind: str, n: int, verbose: bool = True) -> list[dict]:
         row = {"kind": kind, "i": i, "vx_true": vx, "vy_true": vy, "a_true": scene.a, "speed": float(np.hypot(vx, vy)),
                "snr_db": scene.snr_db, "texture": type(scene.texture).__name__, "fit_s": t1 - t0, "scipy_s": t2 - t1,
                **{k: getattr(res, k) for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi", "message",
-                                               "texture", "v_normal", "v_normal_err", "normal_angle")},
+                                               "texture", "texture_margin", "error_method",
+                                               "v_normal", "v_normal_err", "normal_angle")},
                "status": str(res.status), "v_normal_true": _normal_speeds(scene),
                "heard_2d": heard_by_both_pairs(rec, scene),
                "scipy": dict(zip(("vx", "vx_err", "vy", "vy_err", "a", "a_err"),
@@ -263,6 +264,9 @@ def summarize(rows: list[dict]) -> dict:
     for name in ("vx", "vy", "a"):
         pool = [r for r in ok if r[name] is not None and r[name + "_err"]]
         out[name + "_cover1_ok"] = share(lambda r: _dev(r, name) <= r[name + "_err"], pool)
+        poor = [r for r in rows if r["status"] == "poor_fit" and r[name] is not None and r[name + "_err"]]
+        out[name + "_cover1_poor"] = share(lambda r: _dev(r, name) <= r[name + "_err"], poor)
+        out[name + "_cover3_poor"] = share(lambda r: _dev(r, name) <= 3 * r[name + "_err"], poor)
 
     def wrong(r):
         """A number with an error bar (status ok or undetermined) more than 3 of its sigmas off."""
@@ -289,18 +293,21 @@ def _pct(x):
 def table(summary: dict) -> str:
     lines = ["| texture | scenes | statuses | model chosen | both speeds within 3 % | a within 5 % | "
              "speed along the normal within 3 % | probes determine it | within 3 % where determined | "
-             "1-sigma cover vx / vy / a (ok) | confident wrong | fit s | scipy: both speeds within 3 % |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "1-sigma cover vx / vy / a (ok) | 1 / 3-sigma cover vx, vy, a (poor_fit) | confident wrong | fit s | "
+             "scipy: both speeds within 3 % |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for kind, s in summary.items():
         st = ", ".join(f"{k} {v}" for k, v in sorted(s["status"].items()))
         tx = ", ".join(f"{k} {v}" for k, v in sorted(s["texture"].items()))
         cover = " / ".join(_pct(s[k + "_cover1_ok"]) for k in ("vx", "vy", "a"))
+        poor = ", ".join(f"{_pct(s.get(k + '_cover1_poor'))} / {_pct(s.get(k + '_cover3_poor'))}"
+                         for k in ("vx", "vy", "a")) if s.get("vx_cover1_poor") is not None else "-"
         det, within = "-", "-"
         if s.get("determinable") is not None:
             det = f"{s['n_determinable']} of {s['n']}"
             within = _pct(s["v_normal_3pct_determinable" if kind == "grating" else "both_speeds_3pct_determinable"])
         lines.append(f"| {kind} | {s['n']} | {st} | {tx} | {_pct(s['both_speeds_3pct'])} | {_pct(s['a_5pct'])} | "
-                     f"{_pct(s['v_normal_3pct'])} | {det} | {within} | {cover} | {_pct(s['confident_wrong_share'])} | "
+                     f"{_pct(s['v_normal_3pct'])} | {det} | {within} | {cover} | {poor} | {_pct(s['confident_wrong_share'])} | "
                      f"{s['fit_s_median']:.2f} | {_pct(s['scipy_both_speeds_3pct'])} |")
     return "\n".join(lines)
 

@@ -19,7 +19,7 @@ from tactile_jax.inference import run
 from tactile_jax.inference.core import Settings
 from tactile_jax.io.recording import Recording
 from tactile_jax.simulation.scene import Scene, simulate
-from tactile_jax.simulation.texture import DirectionalTexture, Grating, RandomTexture
+from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture
 
 
 def _scene(vx, vy, a, seed, snr=50.0, duration=16.0):
@@ -123,6 +123,19 @@ def test_a_grating_gives_its_normal_speed_and_leaves_the_ridge_component_undeter
     assert abs(res.a - 1.5e-3) < 3 * res.a_err
     row = res.to_record()
     assert row["status"] == "undetermined" and row["vx"] is None and row["v_normal"] == res.v_normal
+
+
+@pytest.mark.slow
+def test_a_lumpy_spectrum_of_few_modes_is_a_poor_fit_whose_errors_hold_the_lumps():
+    """300 plane waves: the same lumps in every segment, which the segment jackknife cannot see. The fit says
+    poor_fit, and the spread of its misfit across frequency sets the speeds' errors, so they hold the truth."""
+    scene = Scene(texture=ModeTexture(n_modes=300, seed=4), velocity=(0.03, 0.02), contact_radius=1.5e-3,
+                  duration=16.0, snr_db=45.0, seed=4)
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))
+    assert res.status == "poor_fit"
+    assert "spread across frequency" in res.error_method and "lumpy texture spectrum" in res.message
+    for name, truth in (("vx", 0.03), ("vy", 0.02)):
+        assert abs(res[name].value - truth) < 3 * res[name].err
 
 
 def test_bad_input_raises_one_line_naming_the_source():

@@ -278,11 +278,12 @@ def test_texture_models_the_data_barely_tell_apart_are_averaged():
     free = np.ones(n, bool)
     free[[INDEX["aniso_p"], INDEX["aniso_q"]]] = False
     iso = types.SimpleNamespace(status=FIT_CODES.index(Status.OK), free=free, theta=np.zeros(n), n_data=400.0,
-                                chi2=400.0, redchi=1.0)
+                                chi2=400.0, redchi=1.0, sd=np.full(n, 0.05))
 
-    def directional(drop):
+    def directional(drop, shift=0.1):
         def refit(theta, fr):
-            return types.SimpleNamespace(theta=np.full(n, 0.1), free=fr, chi2=400.0 - drop, redchi=(400.0 - drop) / 390)
+            return types.SimpleNamespace(theta=np.full(n, shift), free=fr, chi2=400.0 - drop,
+                                         redchi=(400.0 - drop) / 390, sd=np.full(n, 0.05))
         return refit
 
     close = ms.choose_texture(iso, directional(3.0))         # AIC: -3 for the lobe against +4 for its parameters
@@ -290,7 +291,10 @@ def test_texture_models_the_data_barely_tell_apart_are_averaged():
     assert close.name == "isotropic" and close.summary is iso and close.other is not None
     assert close.margin == pytest.approx(margin, rel=1e-6)
     assert close.weight == pytest.approx(1.0 / (1.0 + np.exp(-0.5 * margin)))
-    assert "averaged over the isotropic and directional models" in close.note
+    assert close.note.startswith("isotropic texture by AIC") and "averaged with the directional fit (weight" in close.note
+    # the same margin, and the directional fit's values within a tenth of an error of the isotropic ones
+    quiet = ms.choose_texture(iso, directional(3.0, shift=0.001))
+    assert quiet.other is not None and quiet.weight == close.weight and quiet.note == ""
     decisive = ms.choose_texture(iso, directional(60.0))
     assert decisive.name == "directional" and decisive.other is None and decisive.weight == 1.0
     assert decisive.margin > ms.TEXTURE_AVERAGED and decisive.note.startswith("directional texture (AIC margin")

@@ -46,7 +46,7 @@ from ..spectral import band as band_mod
 from ..spectral.band import MIN_BINS as MIN_BINS
 from .data import N_FIT, JointData, grid_offsets, half_offsets, measure
 from .forward import INDEX, N_PHYS, ModelSpectra, spectra_at_bins
-from .residuals import blocks, n_prior, residuals_and_model
+from .residuals import blocks, n_prior, residuals_and_model, row_bins
 from .solve import levenberg_marquardt
 from ..spectral.segments import KERNEL_OFFSETS, Segments
 from ..model.spline import log_phi_at
@@ -73,6 +73,10 @@ STEP_TOL = 0.1
 STOP_TOL = 1e-3
 _A_CLIP = (2e-5, 0.05)
 _OWN = 3          # vx, vy, a: each its own jackknife scale
+#: adjacent bins per cluster of the spread across frequency (``_spread``), and the variance ratio over the
+#: jackknife's scale beyond which that spread sets a parameter's error
+SPREAD_BINS = 2
+SPREAD_GATE = 2.0
 #: a Hertz disk's radius per Gaussian window radius of the same second moment along a probe (a^2/5 = a_g^2/3)
 HERTZ_PER_GAUSS = (5.0 / 3.0) ** 0.5
 
@@ -133,6 +137,7 @@ class Summary(NamedTuple):
     residuals' Jacobian there. texture: (3, 2, L) the texture cross-sections of Eq. 18 / 19 along x and y
     (``texture_sections``). data: the ``JointData`` (for what ``fit`` layers on top). ends:
     (``N_STARTS``, P) where each start's exploration ended (``Start``; a start not explored as it began).
+    spread: (P,) where the misfit's spread across frequency (``_spread``) set the variance scale.
     """
 
     theta: jax.Array
@@ -158,6 +163,7 @@ class Summary(NamedTuple):
     texture: jax.Array
     data: JointData
     ends: jax.Array | None = None
+    spread: jax.Array | None = None
 
 
 def _window(x, i0):
@@ -382,24 +388,56 @@ def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi, he
     r0 = blocks(zero, data.meas, data)
     d_r = jax.vmap(lambda m: blocks(zero, m, data))(meas_k) - r0                   # (G, R_data)
     jac_d = jac[:d_r.shape[1]] * free                                               # the data rows
-    d, _, inv = equilibrated_inverse(jac.T @ jac * (free[:, None] & free[None, :]), free)
-    unit = jnp.where(free[:, None] & free[None, :], inv / (d[:, None] * d[None, :]), 0.0)
+    unit = _unit_inverse(jac, free)
     shifts = -(d_r @ jac_d) @ unit                                                  # (G, P)
     use = seg.count > 0
     g = jnp.maximum(n_groups, 2)
-    mean = jnp.sum(jnp.where(use[:, None], shifts, 0.0), 0) / g
-    dev = jnp.where(use[:, None], shifts - mean, 0.0)
     per_group = total / g
     overlap = 1.0 + (seg.overlap - 1.0) / per_group
-    var = (g - 1) / g * jnp.sum(dev * dev, 0) * overlap
+    scales, pooled = _ratios(shifts, use, g, unit, free, overlap)
+    scales = jnp.maximum(scales, redchi)
+    ran = (n_groups >= 5) & jnp.isfinite(pooled) & (pooled > 0) & jnp.all(jnp.isfinite(scales))
+    return scales, jnp.maximum(pooled, redchi), ran
+
+
+def _unit_inverse(jac, free):
+    """(J^T J)^-1 over ``free`` (P, P), zero elsewhere: the unit Laplace covariance."""
+    d, _, inv = equilibrated_inverse(jac.T @ jac * (free[:, None] & free[None, :]), free)
+    return jnp.where(free[:, None] & free[None, :], inv / (d[:, None] * d[None, :]), 0.0)
+
+
+def _ratios(shifts, use, g, unit, free, factor=1.0):
+    """Variance ratios (P,) over the unit Laplace variances of the delete-one shifts (G, P) of the ``g`` groups
+    where ``use``: vx, vy and a each their own, the others the three's mean (the pooled one, returned too)."""
+    mean = jnp.sum(jnp.where(use[:, None], shifts, 0.0), 0) / g
+    dev = jnp.where(use[:, None], shifts - mean, 0.0)
+    var = (g - 1) / g * jnp.sum(dev * dev, 0) * factor
     var_unit = jnp.diag(unit)
     own = free & (jnp.arange(free.shape[0]) < _OWN) & (var_unit > 0)
     ratio = var / jnp.where(own, var_unit, 1.0)
     n_own = jnp.sum(own)
     pooled = jnp.where(n_own > 0, jnp.sum(jnp.where(own, ratio, 0.0)) / jnp.maximum(n_own, 1), jnp.nan)
-    scales = jnp.maximum(jnp.where(own, ratio, pooled), redchi)
-    ran = (n_groups >= 5) & jnp.isfinite(pooled) & (pooled > 0) & jnp.all(jnp.isfinite(scales))
-    return scales, jnp.maximum(pooled, redchi), ran
+    return jnp.where(own, ratio, pooled), pooled
+
+
+def _spread(r, jac, free, data: JointData):
+    """Variance ratios (P,) and the pooled one of the misfit's spread across frequency: the cluster-robust
+    (sandwich) variance over clusters of ``SPREAD_BINS`` adjacent bins, each cluster holding every block's rows
+    at its bins. The segment jackknife cannot
+    see a misfit that every segment shares: a texture of a few hundred modes has the same lumpy spectrum in
+    every segment. For a model that fits, the ratio scatters about the reduced chi-square."""
+    bins = row_bins(data)
+    n_clusters = -(-data.omega.shape[-1] // SPREAD_BINS)
+    cluster = jnp.asarray(bins // SPREAD_BINS)
+    rows = bins.shape[0]
+    g_rows = jac[:rows] * free * r[:rows, None]                                     # each row's gradient term
+    grads = jax.ops.segment_sum(g_rows, cluster, num_segments=n_clusters)           # (C, P)
+    use = jax.ops.segment_sum((r[:rows] != 0).astype(r.dtype), cluster, num_segments=n_clusters) > 0
+    unit = _unit_inverse(jac, free)
+    g = jnp.maximum(jnp.sum(use), 2)
+    # (J^T J)^-1 g_c are the clusters' scores through the Gauss-Newton map; the sandwich takes g / (g - 1) of
+    # their centred sum of squares, which _ratios' (g - 1) / g turns into
+    return _ratios(grads @ unit, use, g, unit, free, jnp.square(g / (g - 1)))
 
 
 class Start(NamedTuple):
@@ -509,6 +547,10 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
     fallback = jnp.maximum(redchi, 1.0) * jnp.maximum(record.seg.bin_factor, 1.0)
     scales = jnp.where(ran, scales, fallback)
     pooled = jnp.where(ran, pooled, fallback)
+    spread_scales, spread_pooled = _spread(r, jac, free, data)
+    spread = free & (spread_scales > SPREAD_GATE * scales)
+    scales = jnp.where(spread, spread_scales, scales)
+    pooled = jnp.where(spread_pooled > SPREAD_GATE * pooled, spread_pooled, pooled)
     # lsq's cov carries redchi; the scales replace it
     cov = cov * jnp.sqrt(jnp.outer(scales, scales)) / jnp.where(redchi > 0, redchi, 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0, None))
@@ -517,5 +559,5 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
                        jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
     return Summary(theta, cov, sd, free, scales, pooled, chi2, redchi, n_data, cond, decrement, step_sigma,
                    converged, settled & ~(decrement < DECREMENT_TOL), status, n_bins, b, ran,
-                   model, jac, texture_sections(theta, cov, jac, model, data), data)
+                   model, jac, texture_sections(theta, cov, jac, model, data), data, spread=spread)
 

@@ -390,6 +390,10 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
                    texture_other, texture_weight)
 
 
+#: chi-square the Hertz program's own starts must gain over its first solve to replace it
+EXPLORED_GAIN = 0.1
+
+
 def explored(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, str]:
     """Where the Hertz program's first solve ``s`` (from the Gaussian program's scouting) is poor or unsettled,
     the Hertz program's own starts (each pair fitted with the Hertz curve): the fit of lower chi-square, and a
@@ -398,7 +402,8 @@ def explored(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, str]
     if settings.hertz is None or int(s.status) not in _POOR:
         return s, ""
     alt = settle(rec, settings, run.fit_one(rec, settings, no_start()))[0]
-    if not float(alt.chi2) < float(s.chi2):
+    # a real improvement: the same minimum reached again differs from the first by rounding only
+    if not float(alt.chi2) < float(s.chi2) - max(EXPLORED_GAIN, 1e-9 * abs(float(s.chi2))):
         return s, ""
     return alt, (f"the Hertz window's own starts found a better fit than the Gaussian scouting's (chi-square "
                  f"{float(alt.chi2):.4g} against {float(s.chi2):.4g})")

@@ -8,11 +8,12 @@ at the fit and the weights at the full record's.
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from .data import JointData, Measured
 from .forward import N_PHYS, ModelSpectra, spectra_at_bins
 
-__all__ = ["blocks", "residuals", "residuals_and_model", "n_prior"]
+__all__ = ["blocks", "row_bins", "residuals", "residuals_and_model", "n_prior"]
 
 
 def _masked(mask, meas, model, weight):
@@ -33,6 +34,13 @@ def blocks(model: ModelSpectra, meas: Measured, data: JointData):
     ok = data.mask_xy & meas.chain_ok
     out.append(_masked(ok, meas.log_c, model.log_c + data.xy_c_offset[:, None], data.xy_c_weight[:, None]))
     return jnp.concatenate(out)
+
+
+def row_bins(data: JointData) -> np.ndarray:
+    """The window bin (0 .. L-1) of each row of ``blocks`` (static: from the shapes alone)."""
+    b = np.arange(data.omega.shape[-1])
+    n1, n2 = data.meas.beta1.shape[-1], data.meas.beta2.shape[-1]
+    return np.concatenate([np.tile(b, 6), np.repeat(b, 2 * n1), np.repeat(b, 2 * n2), np.tile(b, 2)])
 
 
 def n_prior(n_params: int) -> int:

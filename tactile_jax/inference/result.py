@@ -284,6 +284,10 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
                         if free[_I["log_" + name]]}
     res.error_method = ("laplace x jackknife (vx, vy, a each their own)" if bool(s.jackknife)
                         else "laplace x max(redchi, 1) x bin_factor")
+    spread = [] if s.spread is None else [name for name in OWN_SCALE_PARAMS
+                                           if free[_I["log_" + name]] and bool(np.asarray(s.spread)[_I["log_" + name]])]
+    if spread:
+        res.error_method += f"; {', '.join(spread)} from the misfit's spread across frequency"
     cov = np.asarray(s.cov)
     fidx = np.flatnonzero(free)
     sub = cov[np.ix_(fidx, fidx)]
@@ -321,6 +325,9 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
         g = float(np.exp(theta[i]))
         res.set(name, value=g, err=g * float(sd[i]) if free[i] else None, fixed=not free[i])
     set_contact_depth(res, curvature_radius)
+    if spread:
+        notes.append(f"the errors of {', '.join(spread)} come from the misfit's spread across frequency, 2x or more "
+                     "the segments' scatter" + (" (a lumpy texture spectrum?)" if status == Status.POOR_FIT else ""))
     if res.cond > 1e10:
         notes.append(f"near-degenerate parameters (condition number {res.cond:.2g}): see the correlations")
     if status == Status.POOR_FIT:

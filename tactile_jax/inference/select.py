@@ -319,10 +319,13 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
         return Choice(kept, name, margin, note)
     weight = _akaike_weight(margin)
     w_dir = weight if name == "directional" else 1.0 - weight
-    note = (f"{name} texture by an AIC margin of only {margin:.1f}"
-            + (f" ({lobe})" if name == "directional" else "")
-            + f": vx, vy and a averaged over the isotropic and directional models (Akaike weights "
-            f"{1 - w_dir:.2f} / {w_dir:.2f}), their difference in the errors")
+    other_name, w_other = ("isotropic", 1.0 - w_dir) if name == "directional" else ("directional", w_dir)
+    # said where the average moves vx, vy or a by a tenth of its error or more (the row holds the margin always)
+    sd = np.maximum(np.asarray(kept.sd, float)[:3], 1e-300)
+    moved = np.max(w_other * np.abs(np.asarray(other.theta, float)[:3] - np.asarray(kept.theta, float)[:3]) / sd
+                   * np.asarray(kept.free, bool)[:3])
+    note = (f"{name} texture by AIC {margin:.1f} only" + (f" ({lobe})" if name == "directional" else "")
+            + f": vx, vy, a averaged with the {other_name} fit (weight {w_other:.2f})") if moved >= 0.1 else ""
     return Choice(kept, name, margin, note, other, float(weight))
 
 

@@ -1,0 +1,57 @@
+"""The misfit's spread across frequency (``core._spread``): a cluster-robust sandwich over adjacent bins."""
+
+import types
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tactile_jax.inference import core
+from tactile_jax.inference.residuals import row_bins
+
+jax.config.update("jax_enable_x64", True)
+
+L = 48
+
+
+def _data():
+    meas = types.SimpleNamespace(beta1=np.zeros((L, 2)), beta2=np.zeros((L, 3)))
+    return types.SimpleNamespace(omega=np.zeros(L), meas=meas)
+
+
+def _reference(r, x, cluster):
+    """Cluster-robust variances over the Laplace ones, centred scores, C / (C - 1): written out in numpy."""
+    bread = np.linalg.inv(x.T @ x)
+    ids = np.unique(cluster)
+    scores = np.stack([x[cluster == c].T @ r[cluster == c] for c in ids])
+    scores -= scores.mean(0)
+    meat = len(ids) / (len(ids) - 1) * scores.T @ scores
+    return np.diag(bread @ meat @ bread) / np.diag(bread)
+
+
+def _design(rng, rows):
+    return np.column_stack([np.ones(rows), rng.standard_normal((rows, 4))])
+
+
+def test_rows_follow_the_blocks_layout():
+    bins = row_bins(_data())
+    assert bins.shape == (18 * L,)                       # 3 x 2 L level blocks, 4 L + 6 L chain rows, 2 L residual PSDs
+    assert np.bincount(bins).tolist() == [18] * L
+
+
+def test_spread_is_the_cluster_sandwich_and_flags_only_shared_misfit():
+    rng = np.random.default_rng(5)
+    bins = row_bins(_data())
+    x = _design(rng, bins.size)
+    free = np.ones(5, bool)
+    cluster = bins // core.SPREAD_BINS
+    noise = rng.standard_normal(bins.size)
+    # a misfit shared by every row of a bin (a lump of the texture spectrum), along the first columns
+    lump = (3.0 * rng.standard_normal(L))[bins] * (1.0 + x[:, 1] + x[:, 2])
+    for r, flagged in ((noise, False), (noise + lump, True)):
+        ratios, pooled = core._spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free), _data())
+        ref = _reference(r, x, cluster)
+        np.testing.assert_allclose(np.asarray(ratios)[:3], ref[:3], rtol=1e-8)
+        assert float(pooled) == np.asarray(ratios)[3] == np.asarray(ratios)[4]
+        assert np.isclose(float(pooled), ref[:3].mean(), rtol=1e-8)
+        assert bool(np.any(np.asarray(ratios)[:3] > core.SPREAD_GATE * np.mean(r ** 2))) is flagged
