@@ -49,7 +49,8 @@ def test_spread_is_the_cluster_sandwich_and_flags_only_shared_misfit():
     # a misfit shared by every row of a bin (a lump of the texture spectrum), along the first columns
     lump = (3.0 * rng.standard_normal(L))[bins] * (1.0 + x[:, 1] + x[:, 2])
     for r, flagged in ((noise, False), (noise + lump, True)):
-        ratios, pooled = core._spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free), _data())
+        unit = core._unit_inverse(jnp.asarray(x), jnp.asarray(free))
+        ratios, pooled = core._spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free), unit, _data())
         ref = _reference(r, x, cluster)
         np.testing.assert_allclose(np.asarray(ratios)[:3], ref[:3], rtol=1e-8)
         assert float(pooled) == np.asarray(ratios)[3] == np.asarray(ratios)[4]

@@ -364,8 +364,9 @@ def settled_physics(step_sigma, free):
     return jnp.all(jnp.isfinite(step)) & jnp.all(jnp.where(physics, step < STEP_TOL, True))
 
 
-def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi, hertz):
-    """Variance scales (P,) from the delete-one-group jackknife, the pooled one, and whether it ran."""
+def _jackknife(record: Record, theta, jac, free, unit, data: JointData, i0, redchi, hertz):
+    """Variance scales (P,) from the delete-one-group jackknife, the pooled one, and whether it ran; unit: the
+    unit Laplace covariance (``_unit_inverse``)."""
     seg = record.seg
     total = jnp.sum(seg.count)
     n_groups = jnp.sum(seg.count > 0)
@@ -388,7 +389,6 @@ def _jackknife(record: Record, theta, jac, free, data: JointData, i0, redchi, he
     r0 = blocks(zero, data.meas, data)
     d_r = jax.vmap(lambda m: blocks(zero, m, data))(meas_k) - r0                   # (G, R_data)
     jac_d = jac[:d_r.shape[1]] * free                                               # the data rows
-    unit = _unit_inverse(jac, free)
     shifts = -(d_r @ jac_d) @ unit                                                  # (G, P)
     use = seg.count > 0
     g = jnp.maximum(n_groups, 2)
@@ -420,12 +420,12 @@ def _ratios(shifts, use, g, unit, free, factor=1.0):
     return jnp.where(own, ratio, pooled), pooled
 
 
-def _spread(r, jac, free, data: JointData):
+def _spread(r, jac, free, unit, data: JointData):
     """Variance ratios (P,) and the pooled one of the misfit's spread across frequency: the cluster-robust
     (sandwich) variance over clusters of ``SPREAD_BINS`` adjacent bins, each cluster holding every block's rows
-    at its bins. The segment jackknife cannot
-    see a misfit that every segment shares: a texture of a few hundred modes has the same lumpy spectrum in
-    every segment. For a model that fits, the ratio scatters about the reduced chi-square."""
+    at its bins; unit: the unit Laplace covariance. The segment jackknife cannot see a misfit that every
+    segment shares: a texture of a few hundred modes has the same lumpy spectrum in every segment. For a
+    model that fits, the ratio scatters about the reduced chi-square."""
     bins = row_bins(data)
     n_clusters = -(-data.omega.shape[-1] // SPREAD_BINS)
     cluster = jnp.asarray(bins // SPREAD_BINS)
@@ -433,7 +433,6 @@ def _spread(r, jac, free, data: JointData):
     g_rows = jac[:rows] * free * r[:rows, None]                                     # each row's gradient term
     grads = jax.ops.segment_sum(g_rows, cluster, num_segments=n_clusters)           # (C, P)
     use = jax.ops.segment_sum((r[:rows] != 0).astype(r.dtype), cluster, num_segments=n_clusters) > 0
-    unit = _unit_inverse(jac, free)
     g = jnp.maximum(jnp.sum(use), 2)
     # (J^T J)^-1 g_c are the clusters' scores through the Gauss-Newton map; the sandwich takes g / (g - 1) of
     # their centred sum of squares, which _ratios' (g - 1) / g turns into
@@ -543,11 +542,12 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     settled = settled_physics(step_sigma, free)
     converged = finite & ((decrement < DECREMENT_TOL) | settled)
-    scales, pooled, ran = _jackknife(record, theta, jac, free, data, b.i0, redchi, hertz)
+    unit = _unit_inverse(jac, free)
+    scales, pooled, ran = _jackknife(record, theta, jac, free, unit, data, b.i0, redchi, hertz)
     fallback = jnp.maximum(redchi, 1.0) * jnp.maximum(record.seg.bin_factor, 1.0)
     scales = jnp.where(ran, scales, fallback)
     pooled = jnp.where(ran, pooled, fallback)
-    spread_scales, spread_pooled = _spread(r, jac, free, data)
+    spread_scales, spread_pooled = _spread(r, jac, free, unit, data)
     spread = free & (spread_scales > SPREAD_GATE * scales)
     scales = jnp.where(spread, spread_scales, scales)
     pooled = jnp.where(spread_pooled > SPREAD_GATE * pooled, spread_pooled, pooled)
