@@ -406,7 +406,7 @@ def explored(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, str]
     if not float(alt.chi2) < float(s.chi2) - max(EXPLORED_GAIN, 1e-9 * abs(float(s.chi2))):
         return s, ""
     return alt, (f"the Hertz window's own starts found a better fit than the Gaussian scouting's (chi-square "
-                 f"{float(alt.chi2):.4g} against {float(s.chi2):.4g})")
+                 f"{float(alt.chi2):.1f} against {float(s.chi2):.1f})")
 
 
 def _settled_refit(rec: Record, settings: Settings):

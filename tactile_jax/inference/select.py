@@ -318,14 +318,14 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
         note = f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe}" if name == "directional" else ""
         return Choice(kept, name, margin, note)
     weight = _akaike_weight(margin)
-    w_dir = weight if name == "directional" else 1.0 - weight
-    other_name, w_other = ("isotropic", 1.0 - w_dir) if name == "directional" else ("directional", w_dir)
+    other_name = "isotropic" if name == "directional" else "directional"
     # said where the average moves vx, vy or a by a tenth of its error or more (the row holds the margin always)
-    sd = np.maximum(np.asarray(kept.sd, float)[:3], 1e-300)
-    moved = np.max(w_other * np.abs(np.asarray(other.theta, float)[:3] - np.asarray(kept.theta, float)[:3]) / sd
-                   * np.asarray(kept.free, bool)[:3])
+    i = [_I["log_vx"], _I["log_vy"], _I["log_a"]]
+    shift = np.abs(np.asarray(other.theta, float)[i] - np.asarray(kept.theta, float)[i])
+    moved = np.max((1.0 - weight) * shift / np.maximum(np.asarray(kept.sd, float)[i], 1e-300)
+                   * np.asarray(kept.free, bool)[i])
     note = (f"{name} texture by AIC {margin:.1f} only" + (f" ({lobe})" if name == "directional" else "")
-            + f": vx, vy, a averaged with the {other_name} fit (weight {w_other:.2f})") if moved >= 0.1 else ""
+            + f": vx, vy, a averaged with the {other_name} fit (weight {1.0 - weight:.2f})") if moved >= 0.1 else ""
     return Choice(kept, name, margin, note, other, float(weight))
 
 
