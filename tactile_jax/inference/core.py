@@ -19,7 +19,8 @@
    third of a Hertz one, and the Hertz program holds no Gaussian model to compile;
 5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
    through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
-   other parameters the three pooled, none below the reduced chi-square;
+   other parameters the three pooled, none below the reduced chi-square; where the
+   misfit's spread across frequency (``_spread``) is over twice that, it sets the ratio;
 6. an integer status (``STATUS``) and the reported values.
 
 What only a single record needs (profile-likelihood bounds, more iterations for a fit
