@@ -136,9 +136,9 @@ class Summary(NamedTuple):
     into ``STATUS``. n_bins: usable bins fitted. located: ``Located``. jackknife: whether the
     scales came from the jackknife. model: ``model.ModelSpectra`` at theta. jac: (R, P) the
     residuals' Jacobian there. texture: (3, 2, L) the texture cross-sections of Eq. 18 / 19 along x and y
-    (``texture_sections``). data: the ``JointData`` (for what ``fit`` layers on top). ends:
-    (``N_STARTS``, P) where each start's exploration ended (``Start``; a start not explored as it began).
-    spread: (P,) where the misfit's spread across frequency (``_spread``) set the variance scale.
+    (``texture_sections``). data: the ``JointData`` (for what ``fit`` layers on top). spread: (P,) where
+    the misfit's spread across frequency (``_spread``) set the variance scale. ends: (``N_STARTS``, P)
+    where each start's exploration ended (``Start``; a start not explored as it began).
     """
 
     theta: jax.Array
@@ -163,8 +163,8 @@ class Summary(NamedTuple):
     jac: jax.Array
     texture: jax.Array
     data: JointData
+    spread: jax.Array
     ends: jax.Array | None = None
-    spread: jax.Array | None = None
 
 
 def _window(x, i0):
@@ -560,5 +560,5 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
                        jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
     return Summary(theta, cov, sd, free, scales, pooled, chi2, redchi, n_data, cond, decrement, step_sigma,
                    converged, settled & ~(decrement < DECREMENT_TOL), status, n_bins, b, ran,
-                   model, jac, texture_sections(theta, cov, jac, model, data), data, spread=spread)
+                   model, jac, texture_sections(theta, cov, jac, model, data), data, spread)
 

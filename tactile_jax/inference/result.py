@@ -284,8 +284,7 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
                         if free[_I["log_" + name]]}
     res.error_method = ("laplace x jackknife (vx, vy, a each their own)" if bool(s.jackknife)
                         else "laplace x max(redchi, 1) x bin_factor")
-    spread = [] if s.spread is None else [name for name in OWN_SCALE_PARAMS
-                                           if free[_I["log_" + name]] and bool(np.asarray(s.spread)[_I["log_" + name]])]
+    spread = [name for name in OWN_SCALE_PARAMS if np.asarray(s.spread, bool)[_I["log_" + name]]]   # free ones
     if spread:
         res.error_method += f"; {', '.join(spread)} from the misfit's spread across frequency"
     cov = np.asarray(s.cov)

@@ -77,6 +77,8 @@ A_NEGLIGIBLE = 0.1
 
 _I = {name: i for i, name in enumerate(PARAMS)}
 _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_noise"]
+#: vx, vy and a: the quantities the window and texture averages move
+_I_VVA = [_I["log_vx"], _I["log_vy"], _I_A]
 _I_ANISO = (_I["aniso_p"], _I["aniso_q"])
 #: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
 TEXTURES = ("isotropic", "directional")
@@ -320,7 +322,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     weight = _akaike_weight(margin)
     other_name = "isotropic" if name == "directional" else "directional"
     # said where the average moves vx, vy or a by a tenth of its error or more (the row holds the margin always)
-    i = [_I["log_vx"], _I["log_vy"], _I["log_a"]]
+    i = _I_VVA
     shift = np.abs(np.asarray(other.theta, float)[i] - np.asarray(kept.theta, float)[i])
     moved = np.max((1.0 - weight) * shift / np.maximum(np.asarray(kept.sd, float)[i], 1e-300)
                    * np.asarray(kept.free, bool)[i])
@@ -409,7 +411,7 @@ def choose_window(summary, refit_gaussian, *, bin_factor: float = 1.0) -> Choice
     keep_gauss = float(summary.redchi) > POOR_FIT_REDCHI >= float(gauss.redchi)
     kept, other, name = (gauss, summary, "Hertz") if keep_gauss else (summary, gauss, "Gaussian")
     w_hertz = _akaike_weight(margin)
-    vx, vy, a = np.exp(np.asarray(other.theta)[[_I["log_vx"], _I["log_vy"], _I_A]])
+    vx, vy, a = np.exp(np.asarray(other.theta)[_I_VVA])
     note = (f"the data cannot tell the contact windows apart (margin {margin:+.1f}): vx, vy and a are the "
             f"average over both windows (Akaike weights: Hertz {w_hertz:.2f}, Gaussian {1 - w_hertz:.2f}; the other "
             f"window's a scaled to the same second moment) and their errors include the windows' difference; the "
