@@ -6,6 +6,8 @@ log-uniform 1-8 cm/s, direction uniform 0-90 deg), contact radius uniform
 
 - ``isotropic``: RandomTexture (the model's own assumption);
 - ``directional``: DirectionalTexture, anisotropy uniform 1.5-3, lobe angle uniform 0-180 deg;
+- ``stretched``: StretchedTexture (a brushed surface: correlation length 1.5-3 times longer along the
+  ridges than across, ridges at any angle), whose angular profile is not the directional model's lobe;
 - ``modes``: ModeTexture, 300 plane waves (seeded per scene);
 - ``grating``: a sine Grating, pitch uniform 0.7-1.5 mm, wavevector angle uniform 0-180 deg;
 - ``wire_net``: WireNet, pitch uniform 0.8-1.5 mm, wire width pitch / 5, angle uniform 0-90 deg.
@@ -22,7 +24,7 @@ family nearest the reported value); 1-sigma coverage of vx, vy and a over the
 with an error bar, status ok or undetermined, more than 3 of its sigmas from
 the truth). Times are medians per record after compilation.
 
-    python benchmarks/textures.py --scenes 50 --out benchmarks/out     # ~25 min on 2 cores
+    python benchmarks/textures.py --scenes 50 --out benchmarks/out     # ~30 min on 2 cores
     python benchmarks/textures.py --kinds directional,modes --scenes 50 --out /tmp/tex
     python benchmarks/textures.py --summarize benchmarks/out/textures.json --cache /tmp/texsim --out /tmp/tex
 
@@ -62,9 +64,10 @@ from tactile_jax.simulation.scene import Scene, simulate  # noqa: E402
 from tactile_jax.spectral.estimate import default_nperseg  # noqa: E402
 from tactile_jax.model import r_curve  # noqa: E402
 from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet  # noqa: E402
+from tactile_jax.simulation.texture import StretchedTexture  # noqa: E402
 from tactile_jax.simulation.texture import _raised_cosine_bumps  # noqa: E402
 
-KINDS = ("isotropic", "directional", "modes", "grating", "wire_net")
+KINDS = ("isotropic", "directional", "modes", "grating", "wire_net", "stretched")
 #: where simulated recordings are kept between runs (``--cache``); None: simulate every time
 _CACHE: Path | None = None
 FS, DURATION = 1000.0, 16.0
@@ -77,6 +80,8 @@ def texture(kind: str, rng, seed: int):
         return RandomTexture()
     if kind == "directional":
         return DirectionalTexture(anisotropy=float(rng.uniform(1.5, 3.0)), angle=float(rng.uniform(0, np.pi)))
+    if kind == "stretched":
+        return StretchedTexture(aspect=float(rng.uniform(1.5, 3.0)), angle=float(rng.uniform(0, np.pi)))
     if kind == "modes":
         return ModeTexture(n_modes=300, seed=seed)
     if kind == "grating":

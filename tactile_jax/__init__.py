@@ -35,6 +35,7 @@ from .model.sensor import contact_depth as contact_depth, contact_radius as cont
 from .simulation.scene import Scene as Scene, simulate as simulate
 from .simulation.texture import DirectionalTexture as DirectionalTexture, Grating as Grating
 from .simulation.texture import ModeTexture as ModeTexture, RandomTexture as RandomTexture, WireNet as WireNet
+from .simulation.texture import StretchedTexture as StretchedTexture
 from .spectral.estimate import amplitude_ratio as amplitude_ratio, estimate_spectra as estimate_spectra
 from .spectral.estimate import usable_band as usable_band, whitened_psd as whitened_psd
 from .status import Status as Status

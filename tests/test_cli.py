@@ -37,6 +37,15 @@ def test_simulate_then_spectra(runner, tmp_path):
     assert spec.psd.shape[0] == 4 and spec.ratio.shape == (2, spec.omega.size)
 
 
+def test_simulate_a_brushed_texture_writes_its_truth(runner, tmp_path):
+    rec_path = tmp_path / "brushed.npz"
+    res = runner.invoke(main, ["simulate", "--out", str(rec_path), "--duration", "0.5", "--texture", "brushed",
+                               "--angle", "30", "--contact-radius", "1e-3"])
+    assert res.exit_code == 0, res.output
+    tex = read_recording(rec_path).truth["texture"]
+    assert tex["name"] == "StretchedTexture" and tex["angle"] == pytest.approx(np.radians(30.0))
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [

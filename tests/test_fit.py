@@ -14,12 +14,14 @@ from tactile_jax.errors import TactileInputError
 from tactile_jax.inference.options import FitOptions
 from tactile_jax.inference.fit import fit_recording, fit_spectra
 from tactile_jax.inference.result import result_from_summary
+from tactile_jax.inference.forward import ANISO, INDEX
+from tactile_jax.inference.select import lobe_of
 from tactile_jax.io.files import read_spectra, write_recording
 from tactile_jax.inference import run
 from tactile_jax.inference.core import Settings
 from tactile_jax.io.recording import Recording
 from tactile_jax.simulation.scene import Scene, simulate
-from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture
+from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, StretchedTexture
 
 
 def _scene(vx, vy, a, seed, snr=50.0, duration=16.0):
@@ -202,9 +204,23 @@ def test_directional_texture_is_modelled_and_reported():
     assert res.status == "ok" and res.texture == "directional" and res.texture_margin > 0, res.message
     assert "directional texture" in res.message and iso.texture == "isotropic"
     assert abs(iso.vx - scene.velocity[0]) > 4 * iso.vx_err              # what the isotropic model reports
-    p, q = res.summary.theta[7:9]
-    assert abs((0.5 * np.degrees(np.arctan2(q, p)) - 120.0 + 90.0) % 180.0 - 90.0) < 20.0
+    along, _ = lobe_of(res.summary.theta[[INDEX[name] for name in ANISO]])
+    assert abs((along - 120.0 + 90.0) % 180.0 - 90.0) < 20.0
     speed = float(np.hypot(*scene.velocity))
     for name, true in (("vx", scene.velocity[0]), ("vy", scene.velocity[1])):
         assert abs(res[name].value - true) < min(3 * res[name].err, 0.03 * speed), name
     assert res.to_record()["texture"] == "directional"
+
+
+@pytest.mark.slow
+def test_a_brushed_surface_gets_honest_speeds():
+    """Ridges 2.9x longer than wide: a lobe sharpening with |k|, not the cos 2theta lobe. A lobe to the second
+    harmonic alone put vx 7.7 and vy 18 sigma off here at a reduced chi-square of 1.35, status ok; the fourth
+    harmonic covers both."""
+    scene = Scene(texture=StretchedTexture(aspect=2.853, angle=1.0674), velocity=(0.05493, 0.02557),
+                  contact_radius=1.146e-3, snr_db=43.1, seed=528537910, duration=16.0)
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))
+    assert res.status == "ok" and res.texture == "directional", res.message
+    speed = float(np.hypot(*scene.velocity))
+    for name, true in (("vx", scene.velocity[0]), ("vy", scene.velocity[1])):
+        assert abs(res[name].value - true) < min(3 * res[name].err, 0.03 * speed), name

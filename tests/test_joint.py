@@ -56,7 +56,7 @@ def test_segments_refuse_what_a_record_cannot_meet():
         segments(np.zeros((4, 4000)), 1000.0, method="burg")
 
 
-ISO = jnp.zeros(2)
+ISO = jnp.zeros(4)
 
 
 def _matrix_program(n_nodes, window="gaussian"):
@@ -126,7 +126,7 @@ def test_the_hertz_quadrature_is_converged_where_the_spectra_are_above_the_noise
 @pytest.mark.parametrize("window", ["gaussian", pytest.param("hertz", marks=pytest.mark.slow)])
 def test_the_custom_jacobian_matches_finite_differences(window):
     omega = jnp.linspace(5.0, 300.0, 9)
-    q = jnp.concatenate([jnp.array([0.016, 0.011, 1.5e-3, 0.4, -0.7]), LOG_PHI])
+    q = jnp.concatenate([jnp.array([0.016, 0.011, 1.5e-3, 0.4, -0.7, 0.3, -0.2]), LOG_PHI])
     # the Hertz table's coefficients as an argument (folded into the program as a constant, it compiles slower)
     coef = hertz_table().coef if window == "hertz" else None
     win = 1 if window == "hertz" else None
@@ -135,17 +135,31 @@ def test_the_custom_jacobian_matches_finite_differences(window):
     # every tangent from one table lookup)
     @jax.jit
     def jvp(q, dq, coef):
-        return jax.jvp(lambda q: lines.log_matrix(q[:3], q[5:], q[3:5], omega, DEPTHS, KNOTS, win, coef)[0],
+        return jax.jvp(lambda q: lines.log_matrix(q[:3], q[7:], q[3:7], omega, DEPTHS, KNOTS, win, coef)[0],
                        (q,), (dq,))
 
     # central differences in log of the physical parameters, the angular factor and the knots
-    step = np.concatenate([1e-5 * np.asarray(q[:3]), np.full(2 + 12, 1e-5)])
-    for i in (0, 1, 2, 3, 4, 7, 11):
+    step = np.concatenate([1e-5 * np.asarray(q[:3]), np.full(4 + 12, 1e-5)])
+    for i in (0, 1, 2, 3, 4, 5, 6, 9, 13):
         dq = jnp.zeros_like(q).at[i].set(step[i])
         fd = (np.asarray(jvp(q + dq, dq, coef)[0]) - np.asarray(jvp(q - dq, dq, coef)[0])) / (2 * step[i])
         tangent = np.asarray(jvp(q, dq, coef)[1]) / step[i]
         used = np.abs(fd) > 1e-8
         assert np.allclose(tangent[used], fd[used], rtol=2e-4, atol=1e-6), i
+
+
+def test_the_angular_factor_is_a_log_fourier_series_with_exact_derivatives():
+    theta = jnp.linspace(0.0, np.pi, 13)
+    coef = jnp.array([0.7, -0.4, 0.25, 0.1])
+    cos2, sin2 = jnp.cos(2 * theta), jnp.sin(2 * theta)
+    log_a, d_c, d_s, d_coef = lines.log_angular(cos2, sin2, coef)
+    want = (0.7 * np.cos(2 * theta) - 0.4 * np.sin(2 * theta) + 0.25 * np.cos(4 * theta) + 0.1 * np.sin(4 * theta))
+    np.testing.assert_allclose(log_a, want, rtol=1e-12, atol=1e-14)
+    jac = jax.jacfwd(lambda c, s, k: lines.log_angular(c, s, k)[0], argnums=(0, 1, 2))(cos2, sin2, coef)
+    np.testing.assert_allclose(d_c, jnp.diagonal(jac[0]), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(d_s, jnp.diagonal(jac[1]), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(d_coef, jac[2].T, rtol=1e-12, atol=1e-14)
+    assert np.all(np.asarray(lines.log_angular(cos2, sin2, jnp.zeros(4))[0]) == 0.0)      # isotropic
 
 
 def test_half_bins_are_cubic_interpolation():

@@ -268,15 +268,16 @@ def test_windows_the_data_cannot_tell_apart_are_averaged():
 
 def test_texture_models_the_data_barely_tell_apart_are_averaged():
     """A directional lobe that AIC does not keep by a margin of TEXTURE_AVERAGED still enters: the isotropic
-    fit is kept, the directional one returned with the isotropic Akaike weight; a decisive lobe is kept alone."""
+    fit is kept, the second-harmonic one returned with the isotropic Akaike weight; a decisive lobe is kept
+    alone, refitted to its fourth harmonic."""
     import types
 
-    from tactile_jax.inference.forward import INDEX, N_PHYS
+    from tactile_jax.inference.forward import ANISO, INDEX, N_PHYS
     from tactile_jax.status import FIT_CODES, Status
 
     n = N_PHYS + 4
     free = np.ones(n, bool)
-    free[[INDEX["aniso_p"], INDEX["aniso_q"]]] = False
+    free[[INDEX[name] for name in ANISO]] = False
     iso = types.SimpleNamespace(status=FIT_CODES.index(Status.OK), free=free, theta=np.zeros(n), n_data=400.0,
                                 chi2=400.0, redchi=1.0, sd=np.full(n, 0.05))
 
@@ -286,8 +287,8 @@ def test_texture_models_the_data_barely_tell_apart_are_averaged():
                                          redchi=(400.0 - drop) / 390, sd=np.full(n, 0.05))
         return refit
 
-    close = ms.choose_texture(iso, directional(3.0))         # AIC: -3 for the lobe against +4 for its parameters
-    margin = 4.0 - 3.0 / (397.0 / (400.0 - n))                 # the quasi-likelihood scale: directional chi2 / dof
+    close = ms.choose_texture(iso, directional(3.0))         # AIC: -3 for the lobe against +4 for its 2 harmonics
+    margin = 4.0 - 3.0 / (397.0 / (400.0 - n + 2))             # the quasi-likelihood scale: directional chi2 / dof
     assert close.name == "isotropic" and close.summary is iso and close.other is not None
     assert close.margin == pytest.approx(margin, rel=1e-6)
     assert close.weight == pytest.approx(1.0 / (1.0 + np.exp(-0.5 * margin)))
@@ -298,6 +299,9 @@ def test_texture_models_the_data_barely_tell_apart_are_averaged():
     decisive = ms.choose_texture(iso, directional(60.0))
     assert decisive.name == "directional" and decisive.other is None and decisive.weight == 1.0
     assert decisive.margin > ms.TEXTURE_AVERAGED and decisive.note.startswith("directional texture (AIC margin")
+    # detected by the second harmonic, estimated with all four coefficients
+    assert ms.texture_name(decisive.summary.free) == "directional" and decisive.summary.free.all()
+    assert close.other.free.sum() == n - 2
     res, other = FitResult(), FitResult()
     res.set("vx", value=0.0200, err=0.0002)
     other.set("vx", value=0.0206, err=0.0003)
@@ -331,3 +335,14 @@ def test_window_needed_is_a_likelihood_ratio_test():
     summary.scales[2] = 1.5
     needed, note = ms.window_needed(summary, free, refit)
     assert not needed and "do not need the contact window" in note
+
+
+def test_the_lobe_is_described_by_its_direction_and_contrast():
+    along, ratio = ms.lobe_of([0.5 * np.cos(2 * 0.6), 0.5 * np.sin(2 * 0.6), 0.0, 0.0])
+    assert along == pytest.approx(np.degrees(0.6), abs=0.25) and ratio == pytest.approx(np.exp(1.0), rel=1e-4)
+    # a brushed surface's lobe (aspect 3) to its fourth harmonic, ridges across 150 deg
+    rho, t0 = 0.5, np.radians(150.0)
+    coef = [3 * rho * np.cos(2 * t0), 3 * rho * np.sin(2 * t0), 1.5 * rho ** 2 * np.cos(4 * t0), 1.5 * rho ** 2 * np.sin(4 * t0)]
+    along, ratio = ms.lobe_of(coef)
+    assert along == pytest.approx(150.0, abs=0.25) and ratio == pytest.approx(np.exp(3.0), rel=1e-6)    # the 4th harmonic cancels at 0 and 90 deg
+    assert ms.lobe_of([0.0] * 4)[1] == 1.0

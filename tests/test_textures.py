@@ -1,4 +1,4 @@
-"""DirectionalTexture and ModeTexture: spectra, variance, rotation into the slip frame, scenes, recipes."""
+"""DirectionalTexture, StretchedTexture and ModeTexture: spectra, variance, rotation into the slip frame, scenes, recipes."""
 
 import json
 import math
@@ -14,6 +14,7 @@ from tactile_jax.simulation.texture import (
     DirectionalTexture,
     ModeTexture,
     RandomTexture,
+    StretchedTexture,
     describe_texture,
     texture_field,
 )
@@ -84,7 +85,36 @@ def test_directional_spectrum_is_the_radial_one_times_the_lobe():
     assert texture_field(DirectionalTexture(), xi, xi[:50], 0.2, np.random.default_rng(0)).shape == (50, 200)
 
 
+def test_stretched_spectrum_is_the_radial_one_at_the_stretched_wavenumber():
+    kx, ky = np.array([0.0, 800.0, 0.0, 3000.0, 2e4]), np.array([0.0, 0.0, 800.0, 3000.0, -500.0])
+    radial = RandomTexture().power_spectrum
+    np.testing.assert_allclose(StretchedTexture(aspect=1.0).power_spectrum(kx, ky), radial(np.hypot(kx, ky)),
+                               rtol=1e-14)
+    # ridges across x: along x the radial spectrum, along y the radial one at aspect |k|
+    tex = StretchedTexture(aspect=3.0, angle=0.0, smallest_scale=1e-9)
+    k = np.array([20.0, 2e5])
+    along, across = tex.power_spectrum(k, 0 * k), tex.power_spectrum(0 * k, k)
+    fine = RandomTexture(smallest_scale=1e-9).power_spectrum
+    np.testing.assert_allclose(along, fine(k), rtol=1e-14)
+    np.testing.assert_allclose(across, fine(3.0 * k), rtol=1e-14)
+    assert along[0] / across[0] == pytest.approx(1.0, rel=0.03)       # k l << 1: no lobe
+    assert along[1] / across[1] == pytest.approx(27.0, rel=1e-3)      # k l >> 1: aspect^3
+    turned = StretchedTexture(aspect=3.0, angle=np.pi / 2, smallest_scale=1e-9)
+    np.testing.assert_allclose(turned.power_spectrum(0 * k, k), along, rtol=1e-12)
+
+
+@pytest.mark.parametrize("phi", [0.0, 0.9])
+def test_stretched_texture_has_rms2_and_its_lobe_along_its_angle_in_the_slip_frame(phi):
+    power, fields = averaged_power(StretchedTexture(rms=2.0, aspect=2.5, angle=0.4), phi)
+    ratio, theta = lobe(power)
+    assert abs(angle_diff(theta, 0.4 - phi)) < 0.1
+    assert ratio > 3.0
+    assert np.mean([u.var() for u in fields]) == pytest.approx(4.0, rel=0.15)
+
+
 @pytest.mark.parametrize("cls, kwargs, field", [
+    (StretchedTexture, {"aspect": 0.5}, "aspect"),
+    (StretchedTexture, {"angle": math.nan}, "angle"),
     (DirectionalTexture, {"anisotropy": 0.5}, "anisotropy"),
     (DirectionalTexture, {"angle": math.nan}, "angle"),
     (DirectionalTexture, {"angle": math.inf}, "angle"),
@@ -165,7 +195,8 @@ def test_mode_texture_is_deterministic_by_seed_and_describes_small():
     assert tj.ModeTexture is ModeTexture and tj.DirectionalTexture is DirectionalTexture
 
 
-@pytest.mark.parametrize("tex", [DirectionalTexture(angle=0.8), ModeTexture(n_modes=64)], ids=["directional", "modes"])
+@pytest.mark.parametrize("tex", [DirectionalTexture(angle=0.8), StretchedTexture(angle=0.8), ModeTexture(n_modes=64)],
+                         ids=["directional", "stretched", "modes"])
 def test_new_textures_run_through_a_scene(tex):
     rec = simulate(Scene(texture=tex, velocity=(0.02, 0.015), contact_radius=1.5e-3, fs=1000.0, duration=0.3,
                          snr_db=None))
@@ -187,6 +218,8 @@ def test_recipe_with_a_mode_texture_loads(tmp_path):
     assert scene.texture == ModeTexture(n_modes=50, seed=2, anisotropy=2.0)
     path.write_text('[simulate]\nvelocity = [0.02, 0.0]\n[simulate.texture]\nname = "DirectionalTexture"\nangle = 0.3\n')
     assert scene_from_recipe(load_recipe(path)).texture == DirectionalTexture(angle=0.3)
+    path.write_text('[simulate]\nvelocity = [0.02, 0.0]\n[simulate.texture]\nname = "StretchedTexture"\naspect = 2.5\n')
+    assert scene_from_recipe(load_recipe(path)).texture == StretchedTexture(aspect=2.5)
     path.write_text('[simulate]\nvelocity = [0.02, 0.0]\n[simulate.texture]\nname = "Foam"\n')
     with pytest.raises(TactileInputError, match="ModeTexture"):
         scene_from_recipe(load_recipe(path))

@@ -12,11 +12,14 @@ from .common import parse_floats, user_errors
 
 @click.command(short_help="Simulate a scene into a recording file.")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False), help="Recording file to write (.h5, .hdf5 or .npz).")
-@click.option("--texture", type=click.Choice(["random", "grating", "net", "directional", "modes"]), default="random",
-              show_default=True, help="random (foamed polystyrene), grating (1-D, like the paper's pipes), net (wire net),"
-              " directional (anisotropic random, 3:1 along x) or modes (300 plane waves, seeded by --seed).")
+@click.option("--texture", type=click.Choice(["random", "grating", "net", "directional", "brushed", "modes"]),
+              default="random", show_default=True,
+              help="random (foamed polystyrene), grating (1-D, like the paper's pipes), net (wire net), directional"
+              " (anisotropic random, 3:1 along x), brushed (random, correlation 2x longer along ridges across"
+              " --angle) or modes (300 plane waves, seeded by --seed).")
 @click.option("--pitch", type=float, default=None, help="Grating or net pitch, m (defaults 1.5e-3 and 0.5e-3).")
-@click.option("--angle", type=float, default=0.0, show_default=True, help="Grating wavevector angle from the x axis, degrees.")
+@click.option("--angle", type=float, default=0.0, show_default=True,
+              help="Grating wavevector (brushed: ridge normal) angle from the x axis, degrees.")
 @click.option("--velocity", default="0.023,0.0", show_default=True, help="Slip vx,vy in m/s.")
 @click.option("--contact-radius", type=float, default=None, help="Contact radius a, m (default 3e-3 unless --contact-depth).")
 @click.option("--contact-depth", type=float, default=None, help="Contact depth, m; a = sqrt(R d) with R = 30 mm.")
@@ -38,7 +41,7 @@ def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth
 
     from ..io.files import write_recording
     from ..simulation.scene import Scene, simulate as run
-    from ..simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, WireNet
+    from ..simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, StretchedTexture, WireNet
 
     if texture == "random":
         tex = RandomTexture()
@@ -46,6 +49,8 @@ def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth
         tex = Grating(pitch=pitch or 1.5e-3, angle=math.radians(angle))
     elif texture == "directional":
         tex = DirectionalTexture()
+    elif texture == "brushed":
+        tex = StretchedTexture(angle=math.radians(angle))
     elif texture == "modes":
         tex = ModeTexture(seed=seed)
     else:

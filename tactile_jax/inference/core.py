@@ -46,7 +46,7 @@ from ..model.r_curve import log_g
 from ..spectral import band as band_mod
 from ..spectral.band import MIN_BINS as MIN_BINS
 from .data import N_FIT, JointData, grid_offsets, half_offsets, measure
-from .forward import INDEX, N_PHYS, ModelSpectra, spectra_at_bins
+from .forward import ANISO, INDEX, N_PHYS, ModelSpectra, spectra_at_bins
 from .residuals import blocks, n_prior, residuals_and_model, row_bins
 from .solve import levenberg_marquardt
 from ..spectral.segments import KERNEL_OFFSETS, Segments
@@ -90,7 +90,7 @@ class Settings(NamedTuple):
     noise_floor, fit_gain: fit a shallow white-noise floor / the pairs' gain ratios.
     conditioned: fit the conditioned deep PSDs. chain: blocks of the y pair conditioned on the x pair
     (0: none, 1: y1 on (x1, x2) in place of y1's PSD, 2: also y2 on (x1, x2, y1) in place of the y
-    ratio and S22.1). directional: fit the texture's angular factor (p, q) (held at 0 otherwise).
+    ratio and S22.1). directional: fit the texture's angular factor (``forward.ANISO``; held at 0 otherwise).
     hertz: the contact window: None for the Gaussian, or the Hertz window's table coefficients
     (``model.hertz.hertz_table().coef``: data, so that every record of a window shares one program).
     """
@@ -314,7 +314,7 @@ def prepare(record: Record, settings: Settings, own_starts=True) -> Prepared:
     idx = jnp.arange(p)
     speed = (idx == i["log_vx"]) | (idx == i["log_vy"])
     gain = (idx == i["log_gx"]) | (idx == i["log_gy"])
-    aniso = (idx == i["aniso_p"]) | (idx == i["aniso_q"])
+    aniso = jnp.isin(idx, jnp.array([i[name] for name in ANISO]))
     free = jnp.ones(p, bool)
     free = jnp.where(speed, ~known, free)
     free = jnp.where(gain, settings.fit_gain, free)

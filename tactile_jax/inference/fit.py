@@ -379,7 +379,7 @@ def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> 
     texture_other, texture_weight = None, 1.0
     if options.texture is None:
         s, texture, texture_margin, note, texture_other, texture_weight = model_select.choose_texture(
-            s, _Refitter(rec, settings), bin_factor=bin_factor)
+            s, _settled_refit(rec, settings), bin_factor=bin_factor)
         notes.append(note)
     oblique = s
     s, direction, direction_margin, note = model_select.choose_direction(s, _settled_refit(rec, settings),

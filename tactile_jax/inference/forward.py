@@ -4,7 +4,7 @@ Parameters (a flat vector, ``PARAMS`` order): log|vx|, log|vy| (m/s), log a
 (m), log gx, log gy (deep/shallow amplitude gain ratios of the pairs), log ay
 (power level of the y pair's shallow probe relative to x1), log noise (a
 fitted shallow white-noise floor, units^2/Hz), the directional texture's
-angular factor (p, q) (``model.lines.log_angular``; 0, 0: isotropic) and log
+angular factor (p, q, p4, q4) (``model.lines.log_angular``; zeros: isotropic) and log
 Phi at the texture's knots (``model.spline``).
 
 The densities of the ten entries of the spectral matrix (``lines``) are
@@ -33,10 +33,13 @@ from ..model import cross_pair
 from .data import JointData
 from ..model.lines import ENTRIES, log_matrix
 
-__all__ = ["PARAMS", "N_PHYS", "INDEX", "param_names", "ModelSpectra", "spectra_at_bins", "half_bin_index"]
+__all__ = ["PARAMS", "ANISO", "N_PHYS", "INDEX", "param_names", "ModelSpectra", "spectra_at_bins", "half_bin_index"]
 
 #: names of the leading parameters; ``log_phi_j`` follow for the texture knots
-PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise", "aniso_p", "aniso_q")
+PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise", "aniso_p", "aniso_q", "aniso_p4",
+          "aniso_q4")
+#: the directional texture's angular coefficients (``model.lines.log_angular``)
+ANISO = ("aniso_p", "aniso_q", "aniso_p4", "aniso_q4")
 N_PHYS = len(PARAMS)
 #: each named parameter's position in theta
 INDEX = {name: i for i, name in enumerate(PARAMS)}
@@ -109,7 +112,7 @@ def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
     under the Hertz window where ``hertz`` holds its table's coefficients (``model.hertz``)."""
     i = INDEX
     phys = jnp.exp(jnp.stack([theta[i["log_vx"]], theta[i["log_vy"]], theta[i["log_a"]]]))
-    aniso = jnp.stack([theta[i["aniso_p"]], theta[i["aniso_q"]]])
+    aniso = jnp.stack([theta[i[name]] for name in ANISO])
     dens, sign = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots,
                             None if hertz is None else 1, hertz)                                # (10, F)
     # gains and levels: x2 has gx, y1 the level ay (power), y2 both (amplitudes: half the power's log)

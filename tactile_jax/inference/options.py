@@ -44,7 +44,7 @@ class FitOptions:
     texture: the texture model: None (default: isotropic, or directional where the isotropic fit
         does not describe the spectra and the directional one does, chosen per record and reported
         in ``FitResult.texture``), "isotropic" (Phi(|k|)) or "directional" (Phi(|k|) times a
-        cos 2(theta - theta0) lobe, ``model.lines``).
+        lobe whose log is a Fourier series in 2 theta to the fourth harmonic, ``model.lines``).
     direction: the slip direction: None (default: both speeds fitted, or a minor speed within 1.4
         sigma of 0 held at 0, chosen per record and reported in ``FitResult.direction``),
         "oblique" (both fitted), "along x" (vy held at 0) or "along y" (vx held at 0).

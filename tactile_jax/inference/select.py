@@ -42,7 +42,7 @@ import numpy as np
 from ..errors import TactileInputError
 from ..status import FIT_CODES, Status
 from .core import HERTZ_PER_GAUSS, POOR_FIT_REDCHI
-from .forward import PARAMS
+from .forward import ANISO, PARAMS
 from .options import DIRECTIONS
 from .result import update_contact_depth
 
@@ -79,7 +79,7 @@ _I = {name: i for i, name in enumerate(PARAMS)}
 _I_A, _I_GAINS, _I_NOISE = _I["log_a"], (_I["log_gx"], _I["log_gy"]), _I["log_noise"]
 #: vx, vy and a: the quantities the window and texture averages move
 _I_VVA = [_I["log_vx"], _I["log_vy"], _I_A]
-_I_ANISO = (_I["aniso_p"], _I["aniso_q"])
+_I_ANISO = tuple(_I[name] for name in ANISO)
 #: the texture models of the joint fit (``FitOptions.texture``; None chooses per record)
 TEXTURES = ("isotropic", "directional")
 #: a minor speed below this fraction of the major one is tested against 0 (``uncertainty.profile.MINOR_PROFILE``)
@@ -91,6 +91,8 @@ AXIS_FLOOR = 1e-3
 WINDOW_DECISIVE = 6.0
 #: a poor isotropic fit is explained by a directional lobe when that brings its reduced chi-square this low
 DIRECTIONAL_EXPLAINS = 1.5
+#: angular coefficients (``forward.ANISO``) that detect a directional lobe: its second harmonic
+DETECTING = 2
 #: below this AIC margin the texture models are averaged by Akaike weight (the loser's weight above 0.7 %)
 TEXTURE_AVERAGED = 10.0
 #: ``window_needed`` tests a contact radius measured to worse than this relative error
@@ -258,6 +260,15 @@ def texture_name(free) -> str:
     return "directional" if np.asarray(free, bool)[list(_I_ANISO)].any() else "isotropic"
 
 
+def lobe_of(coef) -> tuple[float, float]:
+    """(direction of most power, deg in [0, 180); its power over the least's) of the angular factor with
+    coefficients ``coef`` (p, q, p4, q4) (``model.lines.log_angular``), on a 0.25 deg grid."""
+    theta = np.radians(np.arange(0.0, 180.0, 0.25))
+    p, q, p4, q4 = (float(c) for c in coef)
+    log_a = p * np.cos(2 * theta) + q * np.sin(2 * theta) + p4 * np.cos(4 * theta) + q4 * np.sin(4 * theta)
+    return float(np.degrees(theta[np.argmax(log_a)])), float(np.exp(np.ptp(log_a)))
+
+
 def _akaike_weight(margin: float) -> float:
     """The Akaike weight of the one of two models ahead by ``margin`` (AIC or chi-square units)."""
     return 1.0 / (1.0 + np.exp(-0.5 * margin))
@@ -282,20 +293,24 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     """The texture model of one record: the isotropic fit ``summary`` against the directional one.
 
     refit(theta, free) -> ``core.Summary``: the same compiled program from ``theta`` over ``free``.
-    The directional fit starts at the isotropic optimum with the angular factor (p, q) freed; it is
-    kept where it lowers ``information_criterion`` (the quasi-likelihood scale is the directional
-    fit's reduced chi-square, so that a misfit it does not remove is not read as evidence), and
-    only if the lobe describes the spectra (reduced chi-square at most ``DIRECTIONAL_EXPLAINS``): a
-    lumpy spectrum of few discrete modes is not a directional texture, and two more parameters
-    fitted to its lumps would turn a poor fit into a confident one. Where the margin is below
-    ``TEXTURE_AVERAGED`` the result averages both models' estimates by their Akaike weights
-    (``average_models``): a weak lobe that AIC does not keep still moves the minor speed by about its error.
+    The lobe is detected with its second harmonic (``DETECTING`` coefficients, freed from the isotropic
+    optimum) and, where that is decisive, estimated with all four (freed from the second's optimum):
+    the fourth harmonic is second order in the anisotropy, so a lobe too weak to detect decisively has
+    none worth fitting, while a decisive lobe's shape moves the minor speed (``docs/model.md``). The
+    lobe is kept where it lowers ``information_criterion`` (the quasi-likelihood scale is the
+    directional fit's reduced chi-square, so that a misfit it does not remove is not read as
+    evidence), and only if it describes the spectra (reduced chi-square at most
+    ``DIRECTIONAL_EXPLAINS``): a lumpy spectrum of few discrete modes is not a directional texture, and
+    more parameters fitted to its lumps would turn a poor fit into a confident one. Where the margin
+    is below ``TEXTURE_AVERAGED`` the result averages the isotropic and second-harmonic fits by their
+    Akaike weights (``average_models``): a weak lobe that AIC does not keep still moves the minor speed
+    by about its error.
     """
     if not _compared(summary):
         return Choice(summary, "isotropic", None, "")
     free = np.asarray(summary.free, bool)
     fr = free.copy()
-    fr[list(_I_ANISO)] = True
+    fr[list(_I_ANISO[:DETECTING])] = True
     directional = refit(np.asarray(summary.theta), fr)
     n_data = float(summary.n_data)
     if not np.isfinite(float(directional.chi2)):
@@ -310,15 +325,22 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
         note = (f"a directional lobe lowers the reduced chi-square only to {float(directional.redchi):.2f}: it "
                 "does not describe these spectra" if poor else "")
         return Choice(summary, "isotropic", None, note)
-    p, q = (float(directional.theta[i]) for i in _I_ANISO)
-    contrast = np.hypot(p, q) / np.sqrt(1.0 + p * p + q * q)
-    lobe = (f"power along {0.5 * np.degrees(np.arctan2(q, p)) % 180.0:.0f} deg, anisotropy "
-            f"{(1 + contrast) / (1 - contrast):.2f}")
     kept, other, name, margin = ((directional, summary, "directional", ic_iso - ic_dir) if ic_dir < ic_iso else
                                  (summary, directional, "isotropic", ic_dir - ic_iso))
+
+    def lobe(fit):
+        along, anisotropy = lobe_of(np.asarray(fit.theta, float)[list(_I_ANISO)])
+        return f"power along {along:.0f} deg, anisotropy {anisotropy:.2f}"
+
     if margin >= TEXTURE_AVERAGED:
-        note = f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe}" if name == "directional" else ""
-        return Choice(kept, name, margin, note)
+        if name == "isotropic":
+            return Choice(kept, name, margin, "")
+        full = free.copy()
+        full[list(_I_ANISO)] = True
+        shaped = refit(np.asarray(directional.theta), full)
+        if np.isfinite(float(shaped.chi2)) and float(shaped.chi2) <= float(directional.chi2) + 1e-6 * n_data:
+            kept = shaped
+        return Choice(kept, name, margin, f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe(kept)}")
     weight = _akaike_weight(margin)
     other_name = "isotropic" if name == "directional" else "directional"
     # said where the average moves vx, vy or a by a tenth of its error or more (the row holds the margin always)
@@ -326,7 +348,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     shift = np.abs(np.asarray(other.theta, float)[i] - np.asarray(kept.theta, float)[i])
     moved = np.max((1.0 - weight) * shift / np.maximum(np.asarray(kept.sd, float)[i], 1e-300)
                    * np.asarray(kept.free, bool)[i])
-    note = (f"{name} texture by AIC {margin:.1f} only" + (f" ({lobe})" if name == "directional" else "")
+    note = (f"{name} texture by AIC {margin:.1f} only" + (f" ({lobe(directional)})" if name == "directional" else "")
             + f": vx, vy, a averaged with the {other_name} fit (weight {1.0 - weight:.2f})") if moved >= 0.1 else ""
     return Choice(kept, name, margin, note, other, float(weight))
 

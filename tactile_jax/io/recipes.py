@@ -10,8 +10,8 @@ Schema (shared with the paper-experiment recipes)::
     [simulate]   # optional: the scene a recipe reproduces (scene.Scene fields; ignored by `fit --scene`)
     velocity = [0.047, 0.0]
     contact_radius = 2.2e-3
-    [simulate.texture]           # optional: name = a texture class + its fields (RandomTexture,
-    name = "WireNet"             #   DirectionalTexture, ModeTexture, Grating, WireNet)
+    [simulate.texture]           # optional: name = a texture class + its fields (RandomTexture, DirectionalTexture,
+    name = "WireNet"             #   StretchedTexture, ModeTexture, Grating, WireNet)
     pitch = 0.5e-3
     [sweep]      # optional, free-form: read by fits/reproduce.py only
 
@@ -34,7 +34,7 @@ from ..inference.select import MODELS
 __all__ = ["Recipe", "list_recipes", "load_recipe", "recipe_options", "scene_from_recipe"]
 
 _TOP_KEYS = ("description", "fit", "simulate", "sweep")
-_TEXTURES = ("RandomTexture", "DirectionalTexture", "ModeTexture", "Grating", "WireNet")
+_TEXTURES = ("RandomTexture", "DirectionalTexture", "StretchedTexture", "ModeTexture", "Grating", "WireNet")
 _OPTION_FIELDS = {f.name: f for f in dataclasses.fields(FitOptions)}
 _CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"), "texture": ("isotropic", "directional"),
             "model": MODELS}

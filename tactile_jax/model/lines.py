@@ -3,10 +3,17 @@
 A texture of power spectrum Phi(k) = Phi(|k|) A(theta) slides at (vx, vy); the
 mode k rings at omega = k . v. The angular factor of a directional texture is
 
-    A(theta) = 1 + (p cos 2 theta + q sin 2 theta) / sqrt(1 + p^2 + q^2),
+    log A(theta) = p cos 2 theta + q sin 2 theta + p4 cos 4 theta + q4 sin 4 theta,
 
-a cos 2(theta - theta0) lobe of contrast c = sqrt(p^2 + q^2) / sqrt(1 + p^2 + q^2) < 1
-(anisotropy (1 + c) / (1 - c)): positive for every (p, q), smooth, and 1 at p = q = 0. Channel x(d) weighs it by G(kx; d, a) L(ky), channel
+the log-Fourier series of an axial lobe to its fourth harmonic: positive for
+every coefficient, smooth, 1 at zero. The fourth harmonic sets the lobe's
+slope at the two axes independently (2 q + 4 q4 at theta = 0, -2 q + 4 q4 at
+90 deg), which each pair's line reads across its probe and which biases the
+minor speed where it is wrong: a brushed surface's lobe (geometric anisotropy,
+log A = sum_n 3 rho^n cos 2n theta / n where k l >> 1, rho = (aspect - 1) / (aspect + 1)) has
+a fourth harmonic a quarter of its second at aspect 3 (``docs/model.md``).
+
+Channel x(d) weighs Phi by G(kx; d, a) L(ky), channel
 y(d) by G(ky; d, a) L(kx), with G the normalised window-depth response
 (``r_curve.log_g``) and L(q) = exp(-a^2 q^2 / 6) the Gaussian window's
 spectrum across the probe. Every entry of the spectral matrix of
@@ -28,7 +35,8 @@ depend on (vx, vy, a) only, so three forward tangents go through them (one
 ``jax.jvp`` each: a ``jax.linearize`` mapped over them ran 2x slower inside the
 Jacobian, a vmapped ``jax.jvp`` 1.6-2x; under the Hertz window all three take
 their tangents from one table lookup, ``hertz.hertz_lookup``); the texture
-knots enter through the spline's basis at the nodes, a fixed linear map, and (p, q) through A's closed-form derivatives. A
+knots enter through the spline's basis at the nodes, a fixed linear map, and A's coefficients through its
+closed-form derivatives. A
 Jacobian over all parameters then costs about four evaluations instead of one
 per parameter.
 """
@@ -157,16 +165,16 @@ def _line(p, omega, d1, window, hertz_coef):
 
 
 def log_angular(cos2, sin2, aniso):
-    """log A(theta) of the module at directions given by cos 2 theta, sin 2 theta; aniso = (p, q).
+    """log A(theta) of the module at directions given by cos 2 theta, sin 2 theta; aniso = (p, q, p4, q4).
 
-    Returns log A and its derivatives with respect to cos 2 theta, sin 2 theta, p and q (same shape)."""
-    p, q = aniso[0], aniso[1]
-    r = jnp.sqrt(1.0 + p * p + q * q)
-    lobe = (p * cos2 + q * sin2) / r
-    inv = 1.0 / (1.0 + lobe)
-    d_p = (cos2 / r - lobe * p / (r * r)) * inv
-    d_q = (sin2 / r - lobe * q / (r * r)) * inv
-    return jnp.log1p(lobe), p / r * inv, q / r * inv, d_p, d_q
+    Returns log A, its derivatives with respect to cos 2 theta and sin 2 theta (same shape), and with
+    respect to the four coefficients (4, ...)."""
+    p, q, p4, q4 = aniso[0], aniso[1], aniso[2], aniso[3]
+    cos4, sin4 = cos2 * cos2 - sin2 * sin2, 2.0 * sin2 * cos2
+    log_a = p * cos2 + q * sin2 + p4 * cos4 + q4 * sin4
+    d_c = p + 2.0 * (p4 * cos2 + q4 * sin2)
+    d_s = q + 2.0 * (q4 * cos2 - p4 * sin2)
+    return log_a, d_c, d_s, jnp.stack([cos2, sin2, cos4, sin4])
 
 
 def _entries(base, env, mant):
@@ -195,7 +203,7 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz
     (10, F) each.
 
     p: (vx, vy, a) in m/s, m/s, m (positive). log_phi: (n,) log texture spectrum at the knots
-    ``log_k_knots`` (log rad/m). aniso: (2,) the angular factor's (p, q) (0, 0: isotropic).
+    ``log_k_knots`` (log rad/m). aniso: (4,) the angular factor's (p, q, p4, q4) (zeros: isotropic).
     depths: (2,) d1, d2 in m. window: 0 Gaussian, 1 Hertz (traced; None: Gaussian); hertz_coef: the
     Hertz table's coefficients (None: a Gaussian-only program). No gains, levels or noise.
     """
@@ -223,7 +231,7 @@ def _log_matrix_jvp(primals, tangents):
     spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
     basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
-    log_ang, da_c, da_s, da_p, da_q = log_angular(cos2, sin2, aniso)
+    log_ang, da_c, da_s, da_coef = log_angular(cos2, sin2, aniso)
     base = phi + log_ang + log_w
     terms, m = _entries(base, env, mant)                                          # (10, F, N)
     top, weight, total = _signed_sum(terms, m)
@@ -237,7 +245,7 @@ def _log_matrix_jvp(primals, tangents):
     d_m = jnp.stack([d_mant[:, i] * mant[j] + mant[i] * d_mant[:, j] for i, j in ENTRIES], axis=1)
     jac_p = jnp.moveaxis(jnp.sum(wm * d_terms + weight * inv[..., None] * d_m, axis=-1), 0, -1)   # (10, F, 3)
     jac_phi = jnp.einsum("efn,fnj->efj", wm, basis)                               # (10, F, n)
-    jac_ang = jnp.stack([jnp.sum(wm * da_p, -1), jnp.sum(wm * da_q, -1)], -1)     # (10, F, 2)
+    jac_ang = jnp.einsum("efn,cfn->efc", wm, da_coef)                             # (10, F, 4)
     out_dot = (jnp.einsum("efi,i->ef", jac_p, p_dot) + jnp.einsum("efj,j->ef", jac_phi, phi_dot)
                + jnp.einsum("efi,i->ef", jac_ang, aniso_dot))
     return (out, out_sign), (jnp.where(floor, out_dot, 0.0), jnp.zeros_like(out_sign))

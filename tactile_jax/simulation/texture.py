@@ -9,11 +9,11 @@ Two kinds, used polymorphically through :func:`texture_field`:
 
 * analytic textures (:class:`Grating`, :class:`WireNet`, or any object with a
   method ``field(x, y) -> u0``) are evaluated pointwise;
-* random textures (:class:`RandomTexture`, :class:`DirectionalTexture`, or
-  any object with a method ``sample(shape, spacing, rng) -> u0`` on a regular
+* random textures (:class:`RandomTexture`, :class:`DirectionalTexture`,
+  :class:`StretchedTexture`, or any object with a method ``sample(shape, spacing, rng) -> u0`` on a regular
   grid) are generated on the whole grid at once. :class:`RandomTexture` is
   isotropic, so the grid may be given in any rotated frame; a sampler with a
-  ``rotation`` keyword (:class:`DirectionalTexture`) is told the grid's angle.
+  ``rotation`` keyword (the directional textures) is told the grid's angle.
 
 :class:`ModeTexture` (a finite sum of plane waves with RandomTexture's
 spectrum) is analytic: exact at any angle, reproducible from its own seed.
@@ -37,6 +37,7 @@ from ..errors import TactileInputError
 __all__ = [
     "RandomTexture",
     "DirectionalTexture",
+    "StretchedTexture",
     "ModeTexture",
     "Grating",
     "WireNet",
@@ -81,6 +82,12 @@ def _count(name: str, value, minimum: int) -> int:
     if ok and float(value).is_integer() and value >= minimum:
         return int(value)
     raise TactileInputError(f"{name} must be an integer >= {minimum}, got {value!r}", code="bad_setting")
+
+
+def _check_scales(name: str, texture) -> None:
+    """A random texture's rms, correlation_length and smallest_scale are positive numbers."""
+    for field in ("rms", "correlation_length", "smallest_scale"):
+        _positive(f"{name}.{field}", getattr(texture, field))
 
 
 def _radial_power(k, correlation_length: float, smallest_scale: float):
@@ -176,9 +183,7 @@ class RandomTexture:
     smallest_scale: float = 0.2e-3
 
     def __post_init__(self):
-        _positive("RandomTexture.rms", self.rms)
-        _positive("RandomTexture.correlation_length", self.correlation_length)
-        _positive("RandomTexture.smallest_scale", self.smallest_scale)
+        _check_scales("RandomTexture", self)
 
     def power_spectrum(self, k):
         """Unnormalised Phi(k) (C = 1) at spatial frequency ``k`` (rad/m)."""
@@ -223,9 +228,7 @@ class DirectionalTexture:
     angle: float = 0.0
 
     def __post_init__(self):
-        _positive("DirectionalTexture.rms", self.rms)
-        _positive("DirectionalTexture.correlation_length", self.correlation_length)
-        _positive("DirectionalTexture.smallest_scale", self.smallest_scale)
+        _check_scales("DirectionalTexture", self)
         _anisotropy("DirectionalTexture.anisotropy", self.anisotropy)
         _finite("DirectionalTexture.angle", self.angle)
 
@@ -258,6 +261,58 @@ class DirectionalTexture:
             shape, spacing, rng, 10.0 * self.correlation_length, self.rms,
             lambda ky, kx: (_radial_power(np.hypot(ky, kx), self.correlation_length, self.smallest_scale)
                             * _angular_factor(kx, ky, contrast, lobe)))
+
+
+@dataclasses.dataclass(frozen=True)
+class StretchedTexture:
+    """RandomTexture stretched along its ridges: a brushed or lapped surface (geometric anisotropy).
+
+    The correlation length is ``correlation_length`` across the ridges and
+    ``aspect`` times it along them; the ridges run across ``angle``. The 2-D
+    power spectral density at wavevector k is RandomTexture's radial spectrum
+    at the stretched wavenumber
+
+        K = sqrt((k . u)^2 + aspect^2 (k . u_perp)^2),   u = (cos angle, sin angle),
+
+    so its angular profile sharpens with |k| (power along ``angle`` over power
+    across it: aspect^3 where k l >> 1, 1 where k l << 1) and is not the
+    directional fit's separable cos 2theta lobe. Variance rms^2 in expectation.
+
+    rms: dimensionless; correlation_length, smallest_scale: metres (across the
+    ridges); aspect: >= 1 (1 is RandomTexture); angle: rad, in the object frame.
+    """
+
+    rms: float = 1.0
+    correlation_length: float = 1.0e-3
+    smallest_scale: float = 0.2e-3
+    aspect: float = 2.0
+    angle: float = 0.0
+
+    def __post_init__(self):
+        _check_scales("StretchedTexture", self)
+        if _finite("StretchedTexture.aspect", self.aspect) < 1.0:
+            raise TactileInputError(f"StretchedTexture.aspect must be >= 1 (correlation length along the ridges / "
+                                    f"across them), got {self.aspect!r}", code="bad_setting")
+        _finite("StretchedTexture.angle", self.angle)
+
+    def _power(self, kx, ky, angle: float):
+        c, s = math.cos(angle), math.sin(angle)
+        along_u = np.asarray(kx, dtype=float) * c + np.asarray(ky, dtype=float) * s
+        across_u = -np.asarray(kx, dtype=float) * s + np.asarray(ky, dtype=float) * c
+        stretched = np.hypot(along_u, float(self.aspect) * across_u)
+        return _radial_power(stretched, self.correlation_length, self.smallest_scale)
+
+    def power_spectrum(self, kx, ky):
+        """Unnormalised Phi(K) at wavevector (kx, ky), rad/m (K the stretched wavenumber)."""
+        return self._power(kx, ky, float(self.angle))
+
+    def sample(self, shape, spacing, rng, rotation: float = 0.0) -> np.ndarray:
+        """One realisation on a regular grid, shape ``(ny, nx)``, float64, zero mean; as
+        DirectionalTexture.sample (``rotation``: the grid's x axis in the object frame), padded by 5
+        correlation lengths along the ridges."""
+        lobe = float(self.angle) - float(rotation)
+        return _spectral_sample(shape, spacing, rng, 5.0 * float(self.aspect) * self.correlation_length, self.rms,
+                                lambda ky, kx: self._power(kx, ky, lobe))
 
 
 @dataclasses.dataclass(frozen=True)
