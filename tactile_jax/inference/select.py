@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..errors import TactileInputError
+from ..model.lines import log_angular
 from ..status import FIT_CODES, Status
 from .core import HERTZ_PER_GAUSS, POOR_FIT_REDCHI
 from .forward import ANISO, PARAMS
@@ -264,8 +265,7 @@ def lobe_of(coef) -> tuple[float, float]:
     """(direction of most power, deg in [0, 180); its power over the least's) of the angular factor with
     coefficients ``coef`` (p, q, p4, q4) (``model.lines.log_angular``), on a 0.25 deg grid."""
     theta = np.radians(np.arange(0.0, 180.0, 0.25))
-    p, q, p4, q4 = (float(c) for c in coef)
-    log_a = p * np.cos(2 * theta) + q * np.sin(2 * theta) + p4 * np.cos(4 * theta) + q4 * np.sin(4 * theta)
+    log_a = np.asarray(log_angular(np.cos(2 * theta), np.sin(2 * theta), np.asarray(coef, float))[0])
     return float(np.degrees(theta[np.argmax(log_a)])), float(np.exp(np.ptp(log_a)))
 
 
@@ -309,8 +309,14 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     if not _compared(summary):
         return Choice(summary, "isotropic", None, "")
     free = np.asarray(summary.free, bool)
-    fr = free.copy()
-    fr[list(_I_ANISO[:DETECTING])] = True
+
+    def with_lobe(n_coef):
+        """``free`` with the angular factor's first ``n_coef`` coefficients freed."""
+        out = free.copy()
+        out[list(_I_ANISO[:n_coef])] = True
+        return out
+
+    fr = with_lobe(DETECTING)
     directional = refit(np.asarray(summary.theta), fr)
     n_data = float(summary.n_data)
     if not np.isfinite(float(directional.chi2)):
@@ -335,9 +341,7 @@ def choose_texture(summary, refit, *, bin_factor: float = 1.0) -> Choice:
     if margin >= TEXTURE_AVERAGED:
         if name == "isotropic":
             return Choice(kept, name, margin, "")
-        full = free.copy()
-        full[list(_I_ANISO)] = True
-        shaped = refit(np.asarray(directional.theta), full)
+        shaped = refit(np.asarray(directional.theta), with_lobe(len(_I_ANISO)))
         if np.isfinite(float(shaped.chi2)) and float(shaped.chi2) <= float(directional.chi2) + 1e-6 * n_data:
             kept = shaped
         return Choice(kept, name, margin, f"directional texture (AIC margin {margin:.1f} over isotropic): {lobe(kept)}")

@@ -275,8 +275,9 @@ class StretchedTexture:
         K = sqrt((k . u)^2 + aspect^2 (k . u_perp)^2),   u = (cos angle, sin angle),
 
     so its angular profile sharpens with |k| (power along ``angle`` over power
-    across it: aspect^3 where k l >> 1, 1 where k l << 1) and is not the
-    directional fit's separable cos 2theta lobe. Variance rms^2 in expectation.
+    across it: aspect^3 where k l >> 1, 1 where k l << 1): unlike the
+    directional fit's lobe, it is not a function of angle times one of |k|.
+    Variance rms^2 in expectation.
 
     rms: dimensionless; correlation_length, smallest_scale: metres (across the
     ridges); aspect: >= 1 (1 is RandomTexture); angle: rad, in the object frame.
