@@ -10,7 +10,9 @@ log-uniform 1-8 cm/s, direction uniform 0-90 deg), contact radius uniform
   ridges than across, ridges at any angle), whose angular profile is not the directional model's lobe;
 - ``modes``: ModeTexture, 300 plane waves (seeded per scene);
 - ``grating``: a sine Grating, pitch uniform 0.7-1.5 mm, wavevector angle uniform 0-180 deg;
-- ``wire_net``: WireNet, pitch uniform 0.8-1.5 mm, wire width pitch / 5, angle uniform 0-90 deg.
+- ``wire_net``: WireNet, pitch uniform 0.8-1.5 mm, wire width pitch / 5, angle uniform 0-90 deg;
+- ``sheared_net``: the same with the families 3-20 deg off perpendicular (either way): a net the fit's
+  right-angle tie-break between sign choices must not mistake for a square one.
 
 Each record goes through ``fit_recording`` with its defaults (the texture
 model chosen per record: isotropic, directional, or the line model where the
@@ -67,7 +69,7 @@ from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeText
 from tactile_jax.simulation.texture import StretchedTexture  # noqa: E402
 from tactile_jax.simulation.texture import _raised_cosine_bumps  # noqa: E402
 
-KINDS = ("isotropic", "directional", "modes", "grating", "wire_net", "stretched")
+KINDS = ("isotropic", "directional", "modes", "grating", "wire_net", "stretched", "sheared_net")
 #: where simulated recordings are kept between runs (``--cache``); None: simulate every time
 _CACHE: Path | None = None
 FS, DURATION = 1000.0, 16.0
@@ -89,6 +91,10 @@ def texture(kind: str, rng, seed: int):
     if kind == "wire_net":
         pitch = float(rng.uniform(0.8e-3, 1.5e-3))
         return WireNet(pitch=pitch, wire_width=pitch / 5, angle=float(rng.uniform(0, np.pi / 2)))
+    if kind == "sheared_net":
+        pitch = float(rng.uniform(0.8e-3, 1.5e-3))
+        shear = float(rng.choice([-1.0, 1.0]) * rng.uniform(np.radians(3.0), np.radians(20.0)))
+        return WireNet(pitch=pitch, wire_width=pitch / 5, angle=float(rng.uniform(0, np.pi / 2)), shear=shear)
     raise ValueError(f"unknown kind {kind!r}; expected one of {', '.join(KINDS)}")
 
 
@@ -127,7 +133,7 @@ def _normal_speeds(scene) -> list[float]:
     if isinstance(tex, Grating):
         angles = [tex.angle]
     elif isinstance(tex, WireNet):
-        angles = [tex.angle, tex.angle + np.pi / 2]
+        angles = [tex.angle, tex.angle + np.pi / 2 + tex.shear]
     else:
         return []
     v = np.asarray(scene.velocity, float)
@@ -141,12 +147,12 @@ def _line_coefficients(scene, order: int = 16):
     tex = scene.texture
     k0 = 2 * np.pi / tex.pitch
     e1 = np.array([np.cos(tex.angle), np.sin(tex.angle)])
-    e2 = np.array([-e1[1], e1[0]])
     if isinstance(tex, Grating):
         if tex.profile != "sine":
             raise ValueError("heard_by_both_pairs models sine gratings only")
         orders = np.array([[1, 0], [-1, 0]])
         return orders, k0 * orders[:, :1] * e1, np.array([0.5, 0.5], complex)
+    e2 = np.array([-np.sin(tex.angle + tex.shear), np.cos(tex.angle + tex.shear)])
     m = 256
     s = (np.arange(m) + 0.5) / m * tex.pitch
     f1 = _raised_cosine_bumps(s, tex.pitch, tex.wire_width)

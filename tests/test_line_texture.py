@@ -232,3 +232,78 @@ def test_a_family_as_strong_as_the_other_lines_keeps_its_normal_speed():
     assert res.v_n == pytest.approx(82.643429 / math.hypot(846.3, 1059.4), rel=0.02)
     assert res.normal_angle == pytest.approx(51.4, abs=1.0)
     assert "other line(s)" in res.message and "not one grating" in res.message
+
+
+def _net(shear_deg=0.0, alpha_deg=25.0, k=4500.0):
+    """The two fundamentals b1, b2 of a net (rad/m; b2 at right angles to b1, or ``shear_deg`` further)."""
+    a1, a2 = math.radians(alpha_deg), math.radians(alpha_deg + 90.0 + shear_deg)
+    return np.array([math.cos(a1), math.sin(a1)]) * k, np.array([math.cos(a2), math.sin(a2)]) * k
+
+
+def test_combination_lines_decide_a_nets_sign_choice_despite_a_slightly_biased_ratio():
+    """A net's two fundamentals (heard by both pairs) admit four sign choices; its combination lines b1 +/- b2,
+    each heard by one pair, tell them apart, even when a weak combination line's ratio reads its |k| 0.5 % off
+    (the prediction's own error, ``COMBINATION_K_ERR``, covers that)."""
+    v, a = (0.02, 0.035), 1.2e-3
+    b1, b2 = _net()
+    lines = _lines([b1, b2, b1 + b2, b1 - b2], v, a, hear=[[1, 1, 0, 1], [1, 1, 1, 0]])
+    w = np.abs(np.array([b1, b2, b1 + b2, b1 - b2]) @ v)
+    j = int(np.argsort(w).tolist().index(2))                        # b1 + b2, heard by the y pair
+    ky = abs((b1 + b2)[1]) * 1.005
+    lr = lines.log_ratio.copy()
+    lr[1, j] = float(log_r_exact(ky, D1, D2, a))
+    res = fit_lines(lines._replace(log_ratio=lr), (D1, D2))
+    assert res.status == "ok", res.message
+    assert res.vx == pytest.approx(v[0], rel=1e-3) and res.vy == pytest.approx(v[1], rel=1e-3)
+    assert "combination lines" in res.message
+
+
+@pytest.mark.parametrize("shear", [0.0, 10.0])
+def test_a_right_angle_decides_between_sign_choices_only_for_a_square_net(shear):
+    """Combination lines heard by the x pair alone cannot tell a mirror in ky; two sign choices survive them.
+    Where the families cross at right angles the choice that keeps them so is taken; a net sheared by 10 deg has
+    no such choice, and the speeds stay undetermined with the truth among the alternatives."""
+    v, a = (0.02, 0.035), 1.2e-3
+    b1, b2 = _net(shear)
+    res = fit_lines(_lines([b1, b2, b1 + b2, b1 - b2], v, a, hear=[[1, 1, 1, 1], [1, 1, 0, 0]]), (D1, D2))
+    if shear == 0.0:
+        assert res.status == "ok", res.message
+        assert res.vx == pytest.approx(v[0], rel=1e-3) and res.vy == pytest.approx(v[1], rel=1e-3)
+        assert "right angles" in res.message
+    else:
+        assert res.status == "undetermined" and res.ambiguous and res.vx is None, res.message
+        assert any(abs(u - v[0]) < 1e-4 and abs(w - v[1]) < 1e-4 for u, w, _ in res.alternatives)
+
+
+@pytest.mark.parametrize("shear", [0.0, 10.0])
+def test_a_family_heard_by_one_pair_is_completed_by_the_right_angle_only_where_a_combination_line_checks_it(shear):
+    """One family heard by both pairs, the other by the x pair alone, and their sum by the y pair alone. Read as a
+    square net, the right angle supplies the second family's y component and the sum line's y ratio checks it:
+    both speeds. A net sheared by 10 deg fails that check, and the speeds stay undetermined."""
+    v, a = (0.02, 0.035), 1.2e-3
+    b1, b2 = _net(shear)
+    res = fit_lines(_lines([b1, b2, b1 + b2], v, a, hear=[[1, 1, 0], [1, 0, 1]]), (D1, D2))
+    if shear == 0.0:
+        assert res.status == "ok", res.message
+        assert res.vx == pytest.approx(v[0], rel=2e-3) and res.vy == pytest.approx(v[1], rel=2e-3)
+        assert "right angles" in res.message and "checked by combination lines" in res.message
+    else:
+        assert res.status != "ok" and res.vx is None and res.vy is None, res.message
+
+
+@pytest.mark.parametrize("a, offset_bins, fixes_a", [(2e-3, 0.0, True), (2e-3, 0.35, False), (1.2e-3, 0.0, False)])
+def test_one_pairs_lines_fix_a_only_as_exact_harmonics_at_one_radius(a, offset_bins, fixes_a):
+    """Two lines heard by the x pair alone fix a as harmonics of one family (3 and 5 of 15 rad/s here), from
+    their ratios. Lines 0.35 bin off that ratio (two families of a sheared net) leave a undetermined: the loose
+    harmonic tolerance of the families' search read such a pair as harmonics 3 and 5 and gave a to 1 % of a wrong
+    value. Exact harmonics under a 1.2 mm contact fit equally at 0.957 mm: a is undetermined, both named."""
+    lines = _lines([(3000.0, 900.0), (5000.0, 1500.0)], (0.01, 0.002), a, hear=[[1, 1], [0, 0]])
+    lines = lines._replace(omega=np.array([45.0, 75.0 + offset_bins * lines.d_omega]))
+    res = fit_lines(lines, (D1, D2))
+    assert res.status == "undetermined" and res.vx is None, res.message
+    if fixes_a:
+        assert res.a == pytest.approx(a, rel=0.01)
+    else:
+        assert res.a is None and "a is not determined" in res.message
+    if a == 1.2e-3:
+        assert "fit equally at a = 0.9" in res.message and ", 1.2" in res.message

@@ -330,10 +330,29 @@ def test_bad_settings_raise(kw):
     assert "\n" not in str(err.value)
 
 
+def test_sheared_wire_net_is_periodic_on_its_lattice_with_zero_mean():
+    """A net sheared by 15 deg: its second family's wavevector at angle + 90 deg + shear, so the field repeats
+    under the translations T with T . n1 = pitch, T . n2 = 0 (and the reverse), and the mean stays 0."""
+    net = WireNet(pitch=1e-3, wire_width=0.2e-3, angle=0.3, shear=math.radians(15.0))
+    n1 = np.array([math.cos(0.3), math.sin(0.3)])
+    n2 = np.array([-math.sin(0.3 + net.shear), math.cos(0.3 + net.shear)])
+    cell = np.linalg.inv(np.stack([n1, n2])) * net.pitch        # columns: the two lattice translations
+    rng = np.random.default_rng(0)
+    x, y = rng.uniform(-2e-3, 2e-3, (2, 200))
+    for t in cell.T:
+        np.testing.assert_allclose(net.field(x + t[0], y + t[1]), net.field(x, y), atol=1e-9)
+    # off the lattice it does not repeat: a square net's translation is not one of this net's
+    square = net.pitch * np.array([-n1[1], n1[0]])
+    assert np.abs(net.field(x + square[0], y + square[1]) - net.field(x, y)).max() > 0.1
+    xx, yy = np.meshgrid(np.linspace(0, 20e-3, 1500), np.linspace(0, 20e-3, 1500))
+    assert abs(net.field(xx, yy).mean()) < 2e-3
+
+
 @pytest.mark.parametrize("make", [
     lambda: Grating(pitch=0.0),
     lambda: Grating(profile="square"),
     lambda: WireNet(pitch=0.5e-3, wire_width=0.6e-3),
+    lambda: WireNet(shear=math.pi / 2),
     lambda: RandomTexture(correlation_length=-1.0),
 ])
 def test_bad_textures_raise(make):

@@ -41,11 +41,25 @@ Identifiability (what the fit assumes and reports):
   minor mode (a weak harmonic or combination of lines in other directions, or, in a
   simulation, a mode aliased by the texture's grid) and v_n is withheld.
 - Two or more directions: both speeds. Sign choices t_j are searched on a grid of
-  v (each line's best t at each v), the best minima refined; when two choices fit
-  equally well (chi2 within ``AMBIGUITY_CHI2``) and give speeds more than 3 sigma
-  apart, the speeds are None, status ``undetermined``, and ``alternatives`` lists
-  them. Combination lines (k1 + k2 of a net) are further 2-D modes: they pin the
-  relative signs.
+  v (each line's best t at each v), the best minima refined. Two modes always
+  admit several choices that fit exactly (each t, and each sign of k . v). The
+  combination lines of a net (k1 +/- k2 at omega1 +/- omega2), heard outside the
+  fit, tell them apart: each choice predicts their components differently (to
+  ``COMBINATION_K_ERR``). Where several survive, a choice that puts two
+  families at right angles (within ``PERPENDICULAR_SIN``), where no other
+  does, is taken: a wire net's wires cross at right angles. When choices still
+  fit equally well (chi2 within ``AMBIGUITY_CHI2``) with speeds more than 3
+  sigma apart, the speeds are None, status ``undetermined``, and
+  ``alternatives`` lists them.
+- One family heard by both pairs and lines at other frequencies heard by one
+  pair each (a net whose second family lies within about 1/a of an axis): read
+  as a square net, the right angle supplies each such line's missing component
+  and the lines are fitted in two directions. That is an assumption, so the
+  speeds are reported only where a combination line measures the supplied
+  component and agrees (``_square_net``); else the family's v_n as above.
+- Harmonics heard by one pair alone fix a only if exact (``STRICT_HARMONIC_BINS``)
+  and at one radius: the ratio of two inverted wavenumbers is not monotonic in a,
+  and where two radii fit, a is undetermined and both are named.
 
 Errors: Gauss-Newton covariance of the weighted least squares (optimistix
 Levenberg-Marquardt, ``inference.lsq``) scaled by max(1, reduced chi2); the
@@ -91,10 +105,19 @@ A_DETERMINED = 0.15
 COND_MAX = 1e10
 #: chi2 margin within which two sign choices fit "equally well"
 AMBIGUITY_CHI2 = 4.0
+#: |cos| of the angle between two fitted modes within which a sign choice puts them at right angles (1 deg)
+PERPENDICULAR_SIN = math.sin(math.radians(1.0))
+#: relative error of a combination line's wavevector as predicted from the fitted modes (added in quadrature:
+#: such lines are 20-40 dB weaker than the modes and blend with their neighbours' leakage)
+COMBINATION_K_ERR = 0.01
 #: a line z-score beyond which the worst line may be dropped
 DROP_Z = 4.0
 #: harmonics considered for one family
 MAX_HARMONIC = 8
+#: harmonic tolerance floor (bins) where one pair's harmonics alone fix a (or bound a family's normal speed): the
+#: lines of simulated nets sit within 0.0023 bin of their lattice frequencies (95 %), and two lines of different
+#: families of a sheared net 0.4 bin off a harmonic ratio gave a = 1.18 +/- 0.01 mm for 2.20
+STRICT_HARMONIC_BINS = 0.02
 #: relief-amplitude margin (dB) by which a line in another direction must exceed a family for the family to
 #: count as a minor mode of the texture, whose normal is not reported (its lines' levels over their responses;
 #: on the simulated nets and plane-wave textures, principal families reach at most +6 dB, grid-aliased modes +30-35 dB)
@@ -258,6 +281,11 @@ def _invert_cross(target, a, d1, d2):
     return np.exp(np.interp(np.asarray(target, float), f, np.log(_K_GRID)))
 
 
+def _log_slope(tab, log_k_grid, k, h=0.01):
+    """d tab / d log k at ``k`` (rad/m) of a table on ``log_k_grid`` (central difference)."""
+    return float(np.interp(math.log(k) + h, log_k_grid, tab) - np.interp(math.log(k) - h, log_k_grid, tab)) / (2 * h)
+
+
 def _cross_f(k, a, d1, d2):
     """F(|k|) = log G(|k|; d1, a) + a^2 k^2 / 6 by interpolation of the table."""
     _, f = _tables(a, d1, d2)
@@ -320,13 +348,13 @@ def _start_k(dat: _Data, a, sel):
     return np.where(sel, kx, np.nan), np.where(sel, ky, np.nan)
 
 
-def _harmonic_numbers(w, sw, d_omega, sel):
+def _harmonic_numbers(w, sw, d_omega, sel, floor_bins=0.3):
     """(omega0, n (L,)) of the largest fundamental whose harmonics 1..MAX_HARMONIC explain every line in ``sel``
-    (within 4 sigma or 0.3 bin); (None, zeros) if none does."""
+    (within 4 sigma or ``floor_bins`` bins); (None, zeros) if none does."""
     idx = np.flatnonzero(sel)
     if idx.size == 0:
         return None, np.zeros(w.size)
-    tol = np.maximum(4.0 * sw, 0.3 * d_omega)
+    tol = np.maximum(4.0 * sw, floor_bins * d_omega)
     best = None
     for j in idx:
         for h in range(1, MAX_HARMONIC + 1):
@@ -569,6 +597,9 @@ class _Fitter:
         if v_known is not None:
             self.two_d = (dat.hx | dat.hy)
         self.inv_x, self.inv_y = inv_x, inv_y
+        #: pairs (0 x, 1 y) whose ratios of some lines the right angle of a square net supplied (``_square_net``):
+        #: an ok result then needs a combination line measured in one of them
+        self.check_pairs = None
 
     # ---- helpers
     def _slots(self, sel):
@@ -911,6 +942,10 @@ class _Fitter:
                 return LineFit("undetermined", msg, a=a, a_err=a_err, a_source=a_src, **stats, **base)
             note = (f"; {n_other} other line(s), at no harmonic of the family, lie in other directions (each measured "
                     "in one component): the texture is not one grating, and the normal is its family's")
+            if not marg and p >= P_POOR and self.check_pairs is None:
+                net = self._square_net(lx, ly, 1e-3 * math.exp(fit.theta[0]), others)
+                if net is not None:
+                    return net
         ill = marg and self._marginal(prof, 1) is None or (not marg and not fit.determined)
         if ill and p >= P_POOR:
             return LineFit(status, "one family of parallel lines (a grating) whose lines leave a combination of "
@@ -972,20 +1007,18 @@ class _Fitter:
                         rivals.append((f, ux, uy))
         resolved = ""
         if rivals and not known_v:
-            # combination lines (k_i +/- k_j of the fitted modes, at omega_i +/- omega_j) heard outside the fit
-            # tell the sign choices apart: each choice predicts their components differently
-            scores = [self._combination_score(f, slots) for f in [fit] + [r[0] for r in rivals]]
-            chi, n_m = zip(*scores)
-            order = np.argsort(chi)
-            win = int(order[0])
-            if (n_m[win] > 0 and _p_value(chi[win], n_m[win]) >= P_POOR
-                    and all(chi[i] > chi[win] + 9.0 for i in order[1:])):
-                resolved = (f"; {len(rivals) + 1} sign choices fit the lines, decided by {n_m[win]} measurement(s) of "
-                            f"combination lines (chi2 {chi[win]:.1f} against >= {chi[order[1]]:.1f})")
-                if win > 0:
-                    fit = rivals[win - 1][0]
+            keep, resolved = self._decide([fit] + [r[0] for r in rivals], slots)
+            if len(keep) == 1:
+                if keep[0] > 0:
+                    fit = rivals[keep[0] - 1][0]
                     return self._multi_result((fit, slots, dropped), [], prof, _resolved=resolved, **base)
                 rivals = []
+            else:
+                rivals = [rivals[i - 1] for i in keep if i > 0]
+                if 0 not in keep:            # the best fit itself ruled out: report the survivors
+                    fit = rivals.pop(0)[0]
+                    return self._multi_result((fit, slots, dropped), [f for f, _, _ in rivals], prof,
+                                              _resolved=resolved, **base)
         resolved = resolved or base_resolved
         alts = [(vx, vy, fit.chi2)] + [(r[1], r[2], r[0].chi2) for r in rivals]
         ambiguous = bool(rivals)
@@ -1010,6 +1043,11 @@ class _Fitter:
             return LineFit("undetermined", f"{len(alts)} sign choices of the lines fit equally well with different "
                            f"speeds (|vx|, |vy|): {alt_txt}; more lines (or combination lines) would decide",
                            **common)
+        if self.check_pairs is not None:
+            chi, n_m = self._combination_score(fit, slots, pairs=self.check_pairs)
+            if n_m == 0 or _p_value(chi, n_m) < P_POOR:
+                return LineFit("undetermined", "the right angle of a square net is not checked by a combination line "
+                               f"(chi2 {chi:.1f} for {n_m} measurement(s))", **common)
         speed = math.hypot(vx, vy)
         if not known_v and (vxe > MAX_REL_ERR * speed or vye > MAX_REL_ERR * speed):
             if bounds is None:
@@ -1026,7 +1064,121 @@ class _Fitter:
                + (f"; {int(dropped.sum())} line(s) dropped as outliers" if dropped.any() else "") + resolved)
         return LineFit("ok", msg, vx=vx, vx_err=vxe, vy=vy, vy_err=vye, speed_bounds=bounds, **common)
 
-    def _combination_score(self, fit, slots):
+    def _square_net(self, lx, ly, a, others):
+        """A family (fitted log |kx0|, log |ky0| = ``lx``, ``ly``; rad/mm, radius ``a``, m) and lines at other
+        frequencies, each heard by one pair, read as a wire net whose second family crosses the first at
+        right angles: a LineFit, or None where that reading gives no verified speeds.
+
+        Each other line in turn is taken as the second family's fundamental, with its harmonics. Such a line
+        gives one component; the right angle gives the other (|k2y| / |k2x| = |k1x| / |k1y|, its ratio then
+        known to the log-ratio error of a 1 deg tilt, ``PERPENDICULAR_SIN``), and every line is fitted in two
+        directions as any others. The right angle is an assumption: speeds are reported only where a
+        combination line measures, in the pair whose ratio the right angle supplied, what the fit predicts
+        (``_multi_result``), and where every reading so verified gives the same speeds.
+        """
+        dat = self.dat
+        k1x, k1y = math.exp(lx), math.exp(ly)
+        single = others & (dat.hx ^ dat.hy)
+        tol = np.maximum(4.0 * dat.sw, 0.3 * dat.d_omega)
+        lr_tab, _ = _tables(a, dat.d1, dat.d2)
+        lk = np.log(_K_GRID)
+        tilt = math.asin(PERPENDICULAR_SIN) * 2.0 / max(abs(math.sin(2.0 * math.atan2(k1x, k1y))), 1e-3)
+        found = []
+        for u in np.flatnonzero(single):
+            n = np.rint(dat.w / dat.w[u])
+            member = single & (n >= 1) & (n <= MAX_HARMONIC) & (np.abs(dat.w - n * dat.w[u]) <= tol + n * tol[u])
+            hx, hy, lrx, srx, lry, sry = (np.array(v) for v in (dat.hx, dat.hy, dat.lrx, dat.srx, dat.lry, dat.sry))
+            pairs = set()
+            for j in np.flatnonzero(member):
+                q = 0 if dat.hx[j] else 1
+                lr, lg = (dat.lrx[j], dat.lgx) if q == 0 else (dat.lry[j], dat.lgy)
+                k_meas = float(invert_ratio(lr - lg, a, dat.d1, dat.d2))
+                k_other = k_meas * (k1x / k1y if q == 0 else k1y / k1x)
+                value = float(np.interp(math.log(k_other), lk, lr_tab))
+                # its error: the 1 deg tilt and the measured component's own, through d log R / d log k
+                slope_m, slope_o = (_log_slope(lr_tab, lk, k) for k in (k_meas, k_other))
+                err = abs(slope_o) * math.hypot(tilt, (dat.srx[j] if q == 0 else dat.sry[j]) / max(abs(slope_m), 1e-6))
+                if q == 0:
+                    hy[j], lry[j], sry[j] = True, value + dat.lgy, err
+                else:
+                    hx[j], lrx[j], srx[j] = True, value + dat.lgx, err
+                pairs.add(1 - q)
+            sub = _Fitter(self.lines, dat._replace(hx=hx, hy=hy, lrx=lrx, srx=srx, lry=lry, sry=sry), self.a_known,
+                          None, (self.a_grid[0], self.a_grid[-1]))
+            sub.check_pairs = tuple(sorted(pairs))
+            res = sub.run()
+            if res.status == "ok":
+                found.append((float(dat.w[u]), res))
+        if not found:
+            return None
+        w2, best = found[0]
+        for _, other in found[1:]:
+            if (abs(other.vx - best.vx) > 3 * math.hypot(other.vx_err, best.vx_err)
+                    or abs(other.vy - best.vy) > 3 * math.hypot(other.vy_err, best.vy_err)):
+                return None
+        why = (f"; read as a wire net whose second family (fundamental at {w2:.2f} rad/s, each line heard by one "
+               "pair) crosses the first at right angles, the right angle checked by combination lines")
+        return best._replace(message=best.message + why)
+
+    def _decide(self, cands, slots):
+        """Which of the equally good sign choices ``cands`` (fits, best first) survive: (indices, message).
+
+        First the combination lines (k_i +/- k_j of the fitted modes, at omega_i +/- omega_j) heard outside
+        the fit: each choice predicts their components differently, and the choices within 9 of the best
+        chi2 survive (the best must fit them: p >= ``P_POOR``). Then, where several survive, a wire net's
+        geometry: its two families of wires cross at right angles, so a choice that puts two of its fitted
+        modes at right angles (within ``PERPENDICULAR_SIN``, or 3 sigma) where every other puts none is taken.
+        """
+        scores = [self._combination_score(f, slots) for f in cands]
+        chi = np.array([c for c, _ in scores])
+        n_m = [n for _, n in scores]
+        keep = list(range(len(cands)))
+        msg = ""
+        best = int(np.argmin(chi))
+        if n_m[best] > 0 and _p_value(chi[best], n_m[best]) >= P_POOR:
+            keep = [i for i in keep if chi[i] <= chi[best] + 9.0]
+            if len(keep) < len(cands):
+                worse = min(chi[i] for i in range(len(cands)) if i not in keep)
+                msg = (f"; {len(cands)} sign choices fit the lines, {len(keep)} of them the {n_m[best]} "
+                       f"measurement(s) of combination lines (chi2 {chi[best]:.1f} against >= {worse:.1f})")
+        if len(keep) > 1:
+            perp = {i: self._right_angle(cands[i], slots) for i in keep}
+            square = [i for i in keep if perp[i][0]]
+            if len(square) == 1:
+                widest = max(math.degrees(math.acos(min(perp[i][1], 1.0))) for i in keep if i != square[0])
+                msg = ((msg + ", and of those" if msg else f"; {len(keep)} sign choices fit the lines equally, and")
+                       + f" the one that puts two line families at right angles is taken (a wire net's wires cross "
+                       f"at right angles; the other choice(s) cross them at {widest:.0f} deg at most)")
+                keep = square
+        return keep, msg
+
+    def _right_angle(self, fit, slots):
+        """(whether two of the fit's modes are at right angles, the smallest |cos| between non-parallel modes)."""
+        th = fit.theta
+        n = len(slots)
+        lx, ly = th[_NG:_NG + n], th[_NG + NMAX:_NG + NMAX + n]
+        k = np.stack([np.exp(lx), fit.t[slots] * np.exp(ly)], 1)
+        cov = fit.cov * _scale(fit)
+        found, smallest = False, 1.0
+        for i in range(n):
+            for j in range(i + 1, n):
+                ni, nj = np.linalg.norm(k[i]), np.linalg.norm(k[j])
+                c = float(k[i] @ k[j] / (ni * nj))
+                if abs(c) > 0.99:                       # parallel: one family's harmonics
+                    continue
+                smallest = min(smallest, abs(c))
+                # d c / d log|kx|, d log|ky| of both modes
+                idx = [_NG + i, _NG + NMAX + i, _NG + j, _NG + NMAX + j]
+                g = np.array([k[i, 0] * k[j, 0] / (ni * nj) - c * k[i, 0] ** 2 / ni ** 2,
+                              k[i, 1] * k[j, 1] / (ni * nj) - c * k[i, 1] ** 2 / ni ** 2,
+                              k[i, 0] * k[j, 0] / (ni * nj) - c * k[j, 0] ** 2 / nj ** 2,
+                              k[i, 1] * k[j, 1] / (ni * nj) - c * k[j, 1] ** 2 / nj ** 2])
+                sd = math.sqrt(max(float(g @ cov[np.ix_(idx, idx)] @ g), 0.0))
+                if abs(c) <= max(PERPENDICULAR_SIN, 3.0 * sd) and 3.0 * sd < 0.1:
+                    found = True
+        return found, smallest
+
+    def _combination_score(self, fit, slots, pairs=(0, 1)):
         """(chi2, number of measurements) of the lines outside the fit that sit at |n omega_i + m omega_j|
         (|n| + |m| <= 3, within 4 sigma) of two fitted modes i, j, predicted as k = n k_i + m k_j with the
         signed wavevectors of this sign choice (k_i . v = +omega_i); per line the best such combination."""
@@ -1045,6 +1197,9 @@ class _Fitter:
         def at(tab, k):
             return np.interp(np.log(np.maximum(k, _K_GRID[0])), lk, tab)
 
+        def slope(tab, k):          # the prediction's error from COMBINATION_K_ERR
+            return _log_slope(tab, lk, max(k, _K_GRID[0])) * COMBINATION_K_ERR
+
         combos = [(p, q) for p in range(-3, 4) for q in range(-3, 4) if 0 < abs(p) + abs(q) <= 3 and p != 0 and q != 0]
         outside = np.flatnonzero(~np.isin(np.arange(self.n), slots) & (dat.hx | dat.hy | dat.hc))
         total, n_meas = 0.0, 0
@@ -1060,12 +1215,15 @@ class _Fitter:
                             continue
                         kx_u, ky_u = abs(k[0]), abs(k[1])
                         z = []
-                        if dat.hx[u]:
-                            z.append((at(lr_tab, kx_u) + dat.lgx - dat.lrx[u]) / dat.srx[u])
-                        if dat.hy[u]:
-                            z.append((at(lr_tab, ky_u) + dat.lgy - dat.lry[u]) / dat.sry[u])
+                        if dat.hx[u] and 0 in pairs:
+                            z.append((at(lr_tab, kx_u) + dat.lgx - dat.lrx[u])
+                                     / math.hypot(dat.srx[u], slope(lr_tab, kx_u)))
+                        if dat.hy[u] and 1 in pairs:
+                            z.append((at(lr_tab, ky_u) + dat.lgy - dat.lry[u])
+                                     / math.hypot(dat.sry[u], slope(lr_tab, ky_u)))
                         if dat.hc[u]:
-                            z.append((dat.lrho + at(f_tab, ky_u) - at(f_tab, kx_u) - dat.lc[u]) / dat.sc[u])
+                            z.append((dat.lrho + at(f_tab, ky_u) - at(f_tab, kx_u) - dat.lc[u])
+                                     / math.hypot(dat.sc[u], slope(f_tab, ky_u), slope(f_tab, kx_u)))
                         c = float(np.sum(np.square(z)))
                         if best is None or c < best[0]:
                             best = (c, len(z))
@@ -1074,15 +1232,40 @@ class _Fitter:
                 n_meas += best[1]
         return total, n_meas
 
+    def _harmonic_radii(self, comp, harm):
+        """The contact radii (m) at which one pair's harmonics (``harm``) are consistent: the local minima, within
+        ``AMBIGUITY_CHI2`` of the best, of the spread of log(|k_j| / n_j) over a fine grid of ``a_grid``'s range.
+        The ratio of two inverted wavenumbers is not monotonic in a, so two radii often fit a family's harmonics
+        exactly (a 1.2 mm contact and harmonics 3, 5 of 1000 rad/m also fit at 0.957 mm)."""
+        dat = self.dat
+        lr, s, g = (dat.lrx, dat.srx, dat.lgx) if comp == 0 else (dat.lry, dat.sry, dat.lgy)
+        sel = harm > 0
+        grid = np.geomspace(self.a_grid[0], self.a_grid[-1], 161)
+        cost = np.empty(grid.size)
+        for i, r in enumerate(grid):
+            lk = np.log(invert_ratio(lr[sel] - g, r, dat.d1, dat.d2) / harm[sel])
+            slope = np.log(invert_ratio(lr[sel] - g + 1e-3, r, dat.d1, dat.d2) / harm[sel]) - lk
+            z = (lk - np.average(lk, weights=1.0 / np.square(s[sel] * slope / 1e-3))) / np.abs(s[sel] * slope / 1e-3)
+            cost[i] = float(np.sum(np.square(z)))
+        pad = np.concatenate([[np.inf], cost, [np.inf]])
+        level = cost.min() + AMBIGUITY_CHI2
+        minima = [i for i in range(grid.size) if pad[i + 1] <= pad[i] and pad[i + 1] <= pad[i + 2] and cost[i] <= level]
+        distinct = minima[:1]
+        for i in minima[1:]:                 # separated by a rise above the level
+            if cost[distinct[-1]:i].max() > level:
+                distinct.append(i)
+        return [float(grid[i]) for i in distinct]
+
     def _single_pair_only(self) -> LineFit:
         """No line measured in both components: each pair's harmonics may still give a and |k_s|."""
         dat = self.dat
         out = []
         for comp, h in ((0, dat.hx), (1, dat.hy)):
-            w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, h)
+            w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, h, floor_bins=STRICT_HARMONIC_BINS)
             if w0 is not None and len(set(harm[h].astype(int))) >= 2:
                 out.append((int(h.sum()), comp, harm))
         a = a_err = None
+        radii = ()
         a_src = "given" if self.a_known is not None else None
         if self.a_known is not None:
             a, a_err = float(self.a_known), 0.0
@@ -1093,17 +1276,22 @@ class _Fitter:
             if fits and fits[0].converged and 0 < self._a_sd(fits[0]) <= A_DETERMINED:
                 a = 1e-3 * math.exp(fits[0].theta[0])
                 a_err, a_src = a * self._a_sd(fits[0]), "fit"
+                radii = self._harmonic_radii(comp, harm)
+                if len(radii) > 1:
+                    a = a_err = a_src = None
+                    other = ", ".join(f"{r * 1e3:.3g}" for r in radii)
         nan = np.full(self.n, np.nan)
         kx, kxe, ky, kye = self._fill_single(nan, nan, nan.copy(), nan.copy(), a, None if a is None else a_err / a)
         table = _table(self.lines, dat, np.zeros(self.n), np.zeros(self.n, bool), np.zeros(self.n, bool),
                        kx, kxe, ky, kye, np.zeros(self.n))
         msg = (f"every line is heard by one pair only ({int(dat.hx.sum())} x, {int(dat.hy.sum())} y, no cross-pair "
                "level): each gives one wavevector component and the other is unknown, so the speeds are "
-               "undetermined" + ("" if a is not None else " (and a is not determined)"))
+               "undetermined" + ("" if a is not None else " (and a is not determined"
+                                 + (f": the harmonics' ratios fit equally at a = {other} mm)" if radii else ")")))
         # one family heard by one pair: |k| >= |k_s|, so v_n <= omega0 / |k_s| (with a over its range if unknown)
         texture, bounds = "none", None
         for comp, h in ((0, dat.hx), (1, dat.hy)):
-            w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, h)
+            w0, harm = _harmonic_numbers(dat.w, dat.sw, dat.d_omega, h, floor_bins=STRICT_HARMONIC_BINS)
             if w0 is None or (dat.hx | dat.hy)[~h].any():
                 continue
             lr, g = (dat.lrx, dat.lgx) if comp == 0 else (dat.lry, dat.lgy)

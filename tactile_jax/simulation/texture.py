@@ -466,21 +466,24 @@ class Grating:
 
 @dataclasses.dataclass(frozen=True)
 class WireNet:
-    """Two orthogonal gratings of wires, like the paper's 0.5 mm wire net (Fig. 7).
+    """Two crossed gratings of wires, like the paper's 0.5 mm wire net (Fig. 7).
 
     Each wire is a raised-cosine bump 0.5 (1 + cos(2 pi s' / wire_width)) of
     full base width ``wire_width``, repeated every ``pitch``; one family of
     wires runs along direction ``angle`` + pi/2 (its wavevector at ``angle``),
-    the other perpendicular. The height where wires cross is the MAX of the
-    two families (a height map; not their sum), minus its exact mean
-    w/p - (w / (pi p))^2 (pi^2 - 4) / 2, w = wire_width, p = pitch.
-    pitch, wire_width: metres, wire_width < pitch; angle: rad.
+    the other perpendicular to it, or ``shear`` further round (a sheared
+    net, wavevector at ``angle`` + pi/2 + ``shear``). The height where wires
+    cross is the MAX of the two families (a height map; not their sum), minus
+    its exact mean w/p - (w / (pi p))^2 (pi^2 - 4) / 2, w = wire_width,
+    p = pitch (the same for any shear). pitch, wire_width: metres,
+    wire_width < pitch; angle: rad; shear: rad, |shear| < pi/2.
     """
 
     pitch: float = 0.5e-3
     wire_width: float = 0.1e-3
     angle: float = 0.0
     amplitude: float = 1.0
+    shear: float = 0.0
 
     def __post_init__(self):
         p = _positive("WireNet.pitch", self.pitch)
@@ -490,6 +493,9 @@ class WireNet:
         if w >= p:
             raise TactileInputError(f"WireNet.wire_width ({w}) must be smaller than its pitch ({p})",
                                     code="bad_setting")
+        if not abs(_finite("WireNet.shear", self.shear)) < 0.5 * math.pi:
+            raise TactileInputError(f"WireNet.shear must lie strictly between -pi/2 and pi/2 (the two families "
+                                    f"would be parallel), got {self.shear!r}", code="bad_setting")
 
     @property
     def mean_height(self) -> float:
@@ -502,8 +508,9 @@ class WireNet:
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         c, s = math.cos(self.angle), math.sin(self.angle)
+        c2, s2 = math.cos(self.angle + self.shear), math.sin(self.angle + self.shear)
         f1 = _raised_cosine_bumps(x * c + y * s, self.pitch, self.wire_width)
-        f2 = _raised_cosine_bumps(-x * s + y * c, self.pitch, self.wire_width)
+        f2 = _raised_cosine_bumps(-x * s2 + y * c2, self.pitch, self.wire_width)
         return self.amplitude * (np.maximum(f1, f2) - self.mean_height)
 
 
