@@ -307,3 +307,32 @@ def test_one_pairs_lines_fix_a_only_as_exact_harmonics_at_one_radius(a, offset_b
         assert res.a is None and "a is not determined" in res.message
     if a == 1.2e-3:
         assert "fit equally at a = 0.9" in res.message and ", 1.2" in res.message
+
+
+@pytest.mark.parametrize("shear", [0.0, 10.0])
+def test_two_fundamentals_alone_leave_a_square_nets_direction_but_give_its_speed(shear):
+    """The two fundamentals of a net, no combination line: the sign choices stay undetermined. For a square net two
+    of them put the families at right angles, v and its reflection across a family's wires: the message gives
+    their common |v|. A sheared net has no such pair of choices, and the message gives no speed."""
+    v, a = (0.02, 0.035), 1.2e-3
+    b1, b2 = _net(shear)
+    res = fit_lines(_lines([b1, b2], v, a), (D1, D2))
+    assert res.status == "undetermined" and res.ambiguous and res.vx is None, res.message
+    if shear == 0.0:
+        speed = float(res.message.split("share the speed |v| = ")[1].split(" ")[0]) * 1e-2
+        assert speed == pytest.approx(math.hypot(*v), rel=1e-3)
+    else:
+        assert "share the speed" not in res.message
+
+
+def test_an_unchecked_square_net_reading_is_a_message_not_a_result():
+    """As the right-angle completion above, but no combination line: the record stays undetermined (the first
+    family's normal speed), and the message gives what the unchecked square-net reading would say: the speed
+    shared by v and its reflection across a family's wires."""
+    v, a = (0.02, 0.035), 1.2e-3
+    b1, b2 = _net()
+    res = fit_lines(_lines([b1, b2, 2 * b2], v, a, hear=[[1, 1, 1], [1, 0, 0]]), (D1, D2))
+    assert res.status == "undetermined" and res.vx is None and res.v_n is not None, res.message
+    assert "read as a square net" in res.message and "no combination line checks" in res.message
+    speed = float(res.message.split("share the speed |v| = ")[1].split(" ")[0]) * 1e-2
+    assert speed == pytest.approx(math.hypot(*v), rel=0.01)

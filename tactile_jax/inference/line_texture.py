@@ -600,6 +600,8 @@ class _Fitter:
         #: pairs (0 x, 1 y) whose ratios of some lines the right angle of a square net supplied (``_square_net``):
         #: an ok result then needs a combination line measured in one of them
         self.check_pairs = None
+        #: what an unchecked square-net reading gives (set by ``_multi_result``; '' where nothing)
+        self.reading = ""
 
     # ---- helpers
     def _slots(self, sel):
@@ -943,9 +945,10 @@ class _Fitter:
             note = (f"; {n_other} other line(s), at no harmonic of the family, lie in other directions (each measured "
                     "in one component): the texture is not one grating, and the normal is its family's")
             if not marg and p >= P_POOR and self.check_pairs is None:
-                net = self._square_net(lx, ly, 1e-3 * math.exp(fit.theta[0]), others)
+                net, reading = self._square_net(lx, ly, 1e-3 * math.exp(fit.theta[0]), others)
                 if net is not None:
                     return net
+                note += reading
         ill = marg and self._marginal(prof, 1) is None or (not marg and not fit.determined)
         if ill and p >= P_POOR:
             return LineFit(status, "one family of parallel lines (a grating) whose lines leave a combination of "
@@ -1040,14 +1043,18 @@ class _Fitter:
                            **dict(common, a=None, a_err=None, a_source=None))
         if ambiguous:
             alt_txt = "; ".join(f"({u * 100:.3g}, {w * 100:.3g}) cm/s chi2 {c:.1f}" for u, w, c in alts)
+            square = self._square_speed([fit] + [r[0] for r in rivals], slots)
+            self.reading = square or f"{len(alts)} sign choices with different speeds"
             return LineFit("undetermined", f"{len(alts)} sign choices of the lines fit equally well with different "
-                           f"speeds (|vx|, |vy|): {alt_txt}; more lines (or combination lines) would decide",
-                           **common)
+                           f"speeds (|vx|, |vy|): {alt_txt}; more lines (or combination lines) would decide"
+                           + (f"; {square}" if square else ""), **common)
         if self.check_pairs is not None:
             chi, n_m = self._combination_score(fit, slots, pairs=self.check_pairs)
             if n_m == 0 or _p_value(chi, n_m) < P_POOR:
+                self.reading = (f"|vx| = {vx * 100:.4g} +/- {vxe * 100:.2g}, |vy| = {vy * 100:.4g} +/- {vye * 100:.2g} "
+                                "cm/s")
                 return LineFit("undetermined", "the right angle of a square net is not checked by a combination line "
-                               f"(chi2 {chi:.1f} for {n_m} measurement(s))", **common)
+                               f"(chi2 {chi:.1f} for {n_m} measurement(s)): {self.reading}", **common)
         speed = math.hypot(vx, vy)
         if not known_v and (vxe > MAX_REL_ERR * speed or vye > MAX_REL_ERR * speed):
             if bounds is None:
@@ -1067,9 +1074,10 @@ class _Fitter:
     def _square_net(self, lx, ly, a, others):
         """A family (fitted log |kx0|, log |ky0| = ``lx``, ``ly``; rad/mm, radius ``a``, m) and lines at other
         frequencies, each heard by one pair, read as a wire net whose second family crosses the first at
-        right angles: a LineFit, or None where that reading gives no verified speeds.
+        right angles: (a LineFit, or None where that reading gives no checked speeds; what the unchecked
+        readings give, for the message).
 
-        Each other line in turn is taken as the second family's fundamental, with its harmonics. Such a line
+        Each other line (not a harmonic of another) in turn is taken as the second family's fundamental. It
         gives one component; the right angle gives the other (|k2y| / |k2x| = |k1x| / |k1y|, its ratio then
         known to the log-ratio error of a 1 deg tilt, ``PERPENDICULAR_SIN``), and every line is fitted in two
         directions as any others. The right angle is an assumption: speeds are reported only where a
@@ -1083,13 +1091,16 @@ class _Fitter:
         lr_tab, _ = _tables(a, dat.d1, dat.d2)
         lk = np.log(_K_GRID)
         tilt = math.asin(PERPENDICULAR_SIN) * 2.0 / max(abs(math.sin(2.0 * math.atan2(k1x, k1y))), 1e-3)
-        found = []
+        found, unchecked = [], []
         for u in np.flatnonzero(single):
-            n = np.rint(dat.w / dat.w[u])
-            member = single & (n >= 1) & (n <= MAX_HARMONIC) & (np.abs(dat.w - n * dat.w[u]) <= tol + n * tol[u])
+            lower = single & (dat.w < dat.w[u] - tol[u])
+            ratio = dat.w[u] / np.where(lower, dat.w, np.inf)
+            if np.any(lower & (np.abs(ratio - np.rint(ratio)) * dat.w <= tol + tol[u])):
+                continue                     # a harmonic of a lower line: that line is the fundamental
+            # the fundamental alone: its harmonics add no direction, and each mode of the fit has its own sign
             hx, hy, lrx, srx, lry, sry = (np.array(v) for v in (dat.hx, dat.hy, dat.lrx, dat.srx, dat.lry, dat.sry))
             pairs = set()
-            for j in np.flatnonzero(member):
+            for j in (u,):
                 q = 0 if dat.hx[j] else 1
                 lr, lg = (dat.lrx[j], dat.lgx) if q == 0 else (dat.lry[j], dat.lgy)
                 k_meas = float(invert_ratio(lr - lg, a, dat.d1, dat.d2))
@@ -1109,16 +1120,38 @@ class _Fitter:
             res = sub.run()
             if res.status == "ok":
                 found.append((float(dat.w[u]), res))
+            elif sub.reading:
+                unchecked.append((float(dat.w[u]), sub.reading))
         if not found:
-            return None
+            readings = "; ".join(f"second family at {w:.2f} rad/s: {text}" for w, text in unchecked)
+            return None, (f"; read as a square net (its families at right angles, which no combination line checks "
+                          f"here): {readings}" if unchecked else "")
         w2, best = found[0]
         for _, other in found[1:]:
             if (abs(other.vx - best.vx) > 3 * math.hypot(other.vx_err, best.vx_err)
                     or abs(other.vy - best.vy) > 3 * math.hypot(other.vy_err, best.vy_err)):
-                return None
+                return None, ""
         why = (f"; read as a wire net whose second family (fundamental at {w2:.2f} rad/s, each line heard by one "
                "pair) crosses the first at right angles, the right angle checked by combination lines")
-        return best._replace(message=best.message + why)
+        return best._replace(message=best.message + why), ""
+
+    def _square_speed(self, fits, slots) -> str:
+        """Where two or more equally good sign choices put two families at right angles and give one speed |v|
+        (v and its reflection across a family's wires), that speed as a reading of a square net; else ''."""
+        square = [f for f in fits if self._right_angle(f, slots)[0]]
+        if len(square) < 2:
+            return ""
+        speeds, errs = [], []
+        for f in square:
+            vx, vy = f.theta[1] * _V_UNIT, f.theta[2] * _V_UNIT
+            s = math.hypot(vx, vy)
+            g = np.array([vx, vy]) / s * _V_UNIT
+            speeds.append(s)
+            errs.append(math.sqrt(max(float(g @ (f.cov * _scale(f))[1:3, 1:3] @ g), 0.0)))
+        if max(speeds) - min(speeds) > 3.0 * max(max(errs), 1e-12):
+            return ""
+        return (f"the {len(square)} choices that put two families at right angles (a square net) share the speed "
+                f"|v| = {speeds[0] * 100:.4g} +/- {errs[0] * 100:.2g} cm/s and differ in its direction")
 
     def _decide(self, cands, slots):
         """Which of the equally good sign choices ``cands`` (fits, best first) survive: (indices, message).
