@@ -11,8 +11,9 @@ Where things are:
 - ``io``: recordings, spectra, results and recipes; ``viz``: figures and the fit report;
   ``cli``: the ``tactile-jax`` commands.
 
-The library never switches on float64 itself: call
-``jax.config.update("jax_enable_x64", True)`` first (the CLI does).
+The library never switches on float64 globally: call
+``jax.config.update("jax_enable_x64", True)`` first (the CLI does). The line
+model (``inference.line_texture``) runs in float64 within its own scope either way.
 """
 
 from .batch.run import BatchSummary as BatchSummary, run_batch as run_batch

@@ -5,6 +5,7 @@ Short scenes only (4-8 s); the line fit compiles one program (a few seconds), sh
 
 import math
 
+import jax
 import numpy as np
 import pytest
 
@@ -334,5 +335,19 @@ def test_an_unchecked_square_net_reading_is_a_message_not_a_result():
     res = fit_lines(_lines([b1, b2, 2 * b2], v, a, hear=[[1, 1, 1], [1, 0, 0]]), (D1, D2))
     assert res.status == "undetermined" and res.vx is None and res.v_n is not None, res.message
     assert "read as a square net" in res.message and "no combination line checks" in res.message
+    speed = float(res.message.split("share the speed |v| = ")[1].split(" ")[0]) * 1e-2
+    assert speed == pytest.approx(math.hypot(*v), rel=0.01)
+
+
+def test_the_line_fit_runs_in_float64_for_a_float32_caller():
+    """Under float32 (the library's default where the caller does not switch on float64) the line fit still runs
+    in float64: the unchecked square-net reading above finds both reflections and gives their shared speed. In
+    float32 its solves stalled on three of the four sign choices and the message gave one reflection's |vx|,
+    |vy| as the reading."""
+    v, a = (0.02, 0.035), 1.2e-3
+    b1, b2 = _net()
+    with jax.enable_x64(False):
+        res = fit_lines(_lines([b1, b2, 2 * b2], v, a, hear=[[1, 1, 1], [1, 0, 0]]), (D1, D2))
+    assert res.status == "undetermined" and res.v_n is not None, res.message
     speed = float(res.message.split("share the speed |v| = ")[1].split(" ")[0]) * 1e-2
     assert speed == pytest.approx(math.hypot(*v), rel=0.01)

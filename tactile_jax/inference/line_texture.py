@@ -567,7 +567,11 @@ def fit_lines(lines, depths, *, gain_ratio=1.0, shallow_gain_ratio=1.0, contact_
         raise ValueError(f"at most {4 * NMAX} lines, got {n_lines}")
     dat = _measurements(lines, d1, d2, float(g[0]), float(g[1]),
                         None if shallow_gain_ratio is None else float(shallow_gain_ratio), ratio_floor, cross_floor)
-    return _plain(_Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a)).run())
+    # float64 here whatever the caller chose: the frequencies carry relative errors near 1e-5, and in float32 the
+    # Levenberg-Marquardt solves stall on three of the four sign choices of two modes, so that a net's other
+    # choices go missing from its alternatives (the scope ends here; nothing global is switched)
+    with jax.enable_x64(True):
+        return _plain(_Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a)).run())
 
 
 def _plain(res: LineFit) -> LineFit:
