@@ -295,9 +295,9 @@ def test_a_family_heard_by_one_pair_is_completed_by_the_right_angle_only_where_a
 @pytest.mark.parametrize("a, offset_bins, fixes_a", [(2e-3, 0.0, True), (2e-3, 0.35, False), (1.2e-3, 0.0, False)])
 def test_one_pairs_lines_fix_a_only_as_exact_harmonics_at_one_radius(a, offset_bins, fixes_a):
     """Two lines heard by the x pair alone fix a as harmonics of one family (3 and 5 of 15 rad/s here), from
-    their ratios. Lines 0.35 bin off that ratio (two families of a sheared net) leave a undetermined: the loose
-    harmonic tolerance of the families' search read such a pair as harmonics 3 and 5 and gave a to 1 % of a wrong
-    value. Exact harmonics under a 1.2 mm contact fit equally at 0.957 mm: a is undetermined, both named."""
+    their ratios. Lines 0.35 bin off that ratio (two families of a sheared net) leave a undetermined: the 0.3-bin
+    harmonic tolerance of the families' search would read such a pair as harmonics 3 and 5 and give a wrong a to
+    1 %. Exact harmonics under a 1.2 mm contact fit equally at 0.957 mm: a is undetermined, both named."""
     lines = _lines([(3000.0, 900.0), (5000.0, 1500.0)], (0.01, 0.002), a, hear=[[1, 1], [0, 0]])
     lines = lines._replace(omega=np.array([45.0, 75.0 + offset_bins * lines.d_omega]))
     res = fit_lines(lines, (D1, D2))
@@ -342,8 +342,8 @@ def test_an_unchecked_square_net_reading_is_a_message_not_a_result():
 def test_the_line_fit_runs_in_float64_for_a_float32_caller():
     """Under float32 (the library's default where the caller does not switch on float64) the line fit still runs
     in float64: the unchecked square-net reading above finds both reflections and gives their shared speed. In
-    float32 its solves stalled on three of the four sign choices and the message gave one reflection's |vx|,
-    |vy| as the reading."""
+    float32 its solves stall on three of the four sign choices, and the message would give one reflection's
+    |vx|, |vy| as the reading."""
     v, a = (0.02, 0.035), 1.2e-3
     b1, b2 = _net()
     with jax.enable_x64(False):

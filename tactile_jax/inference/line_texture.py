@@ -115,8 +115,8 @@ DROP_Z = 4.0
 #: harmonics considered for one family
 MAX_HARMONIC = 8
 #: harmonic tolerance floor (bins) where one pair's harmonics alone fix a (or bound a family's normal speed): the
-#: lines of simulated nets sit within 0.0023 bin of their lattice frequencies (95 %), and two lines of different
-#: families of a sheared net 0.4 bin off a harmonic ratio gave a = 1.18 +/- 0.01 mm for 2.20
+#: lines of simulated nets sit within 0.0023 bin of their lattice frequencies (95 %), while two lines of different
+#: families of a sheared net 0.4 bin off a 3:5 ratio, read as harmonics, give a = 1.18 +/- 0.01 mm for 2.20
 STRICT_HARMONIC_BINS = 0.02
 #: relief-amplitude margin (dB) by which a line in another direction must exceed a family for the family to
 #: count as a minor mode of the texture, whose normal is not reported (its lines' levels over their responses;
