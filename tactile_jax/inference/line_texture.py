@@ -53,8 +53,8 @@ Identifiability (what the fit assumes and reports):
   ``alternatives`` lists them.
 - One family heard by both pairs and lines at other frequencies heard by one
   pair each (a net whose second family lies within about 1/a of an axis): read
-  as a square net, the right angle supplies each such line's missing component
-  and the lines are fitted in two directions. That is an assumption, so the
+  as a square net, the right angle supplies the missing component of the
+  second family's fundamental, and the lines are fitted in two directions. That is an assumption, so the
   speeds are reported only where a combination line measures the supplied
   component and agrees (``_square_net``); else the family's v_n as above.
 - Harmonics heard by one pair alone fix a only if exact (``STRICT_HARMONIC_BINS``)
@@ -1083,7 +1083,7 @@ class _Fitter:
 
         Each other line (not a harmonic of another) in turn is taken as the second family's fundamental. It
         gives one component; the right angle gives the other (|k2y| / |k2x| = |k1x| / |k1y|, its ratio then
-        known to the log-ratio error of a 1 deg tilt, ``PERPENDICULAR_SIN``), and every line is fitted in two
+        known to the log-ratio error of a 1 deg tilt, ``PERPENDICULAR_SIN``), and the lines are fitted in two
         directions as any others. The right angle is an assumption: speeds are reported only where a
         combination line measures, in the pair whose ratio the right angle supplied, what the fit predicts
         (``_multi_result``), and where every reading so verified gives the same speeds.
@@ -1103,24 +1103,21 @@ class _Fitter:
                 continue                     # a harmonic of a lower line: that line is the fundamental
             # the fundamental alone: its harmonics add no direction, and each mode of the fit has its own sign
             hx, hy, lrx, srx, lry, sry = (np.array(v) for v in (dat.hx, dat.hy, dat.lrx, dat.srx, dat.lry, dat.sry))
-            pairs = set()
-            for j in (u,):
-                q = 0 if dat.hx[j] else 1
-                lr, lg = (dat.lrx[j], dat.lgx) if q == 0 else (dat.lry[j], dat.lgy)
-                k_meas = float(invert_ratio(lr - lg, a, dat.d1, dat.d2))
-                k_other = k_meas * (k1x / k1y if q == 0 else k1y / k1x)
-                value = float(np.interp(math.log(k_other), lk, lr_tab))
-                # its error: the 1 deg tilt and the measured component's own, through d log R / d log k
-                slope_m, slope_o = (_log_slope(lr_tab, lk, k) for k in (k_meas, k_other))
-                err = abs(slope_o) * math.hypot(tilt, (dat.srx[j] if q == 0 else dat.sry[j]) / max(abs(slope_m), 1e-6))
-                if q == 0:
-                    hy[j], lry[j], sry[j] = True, value + dat.lgy, err
-                else:
-                    hx[j], lrx[j], srx[j] = True, value + dat.lgx, err
-                pairs.add(1 - q)
+            q = 0 if dat.hx[u] else 1                # the pair that hears it; the right angle supplies the other
+            lr, lg, s_meas = (dat.lrx[u], dat.lgx, dat.srx[u]) if q == 0 else (dat.lry[u], dat.lgy, dat.sry[u])
+            k_meas = float(invert_ratio(lr - lg, a, dat.d1, dat.d2))
+            k_other = k_meas * (k1x / k1y if q == 0 else k1y / k1x)
+            value = float(np.interp(math.log(k_other), lk, lr_tab))
+            # its error: the 1 deg tilt and the measured component's own, through d log R / d log k
+            slope_m, slope_o = (_log_slope(lr_tab, lk, k) for k in (k_meas, k_other))
+            err = abs(slope_o) * math.hypot(tilt, s_meas / max(abs(slope_m), 1e-6))
+            if q == 0:
+                hy[u], lry[u], sry[u] = True, value + dat.lgy, err
+            else:
+                hx[u], lrx[u], srx[u] = True, value + dat.lgx, err
             sub = _Fitter(self.lines, dat._replace(hx=hx, hy=hy, lrx=lrx, srx=srx, lry=lry, sry=sry), self.a_known,
                           None, (self.a_grid[0], self.a_grid[-1]))
-            sub.check_pairs = tuple(sorted(pairs))
+            sub.check_pairs = (1 - q,)
             res = sub.run()
             if res.status == "ok":
                 found.append((float(dat.w[u]), res))
@@ -1135,8 +1132,8 @@ class _Fitter:
             if (abs(other.vx - best.vx) > 3 * math.hypot(other.vx_err, best.vx_err)
                     or abs(other.vy - best.vy) > 3 * math.hypot(other.vy_err, best.vy_err)):
                 return None, ""
-        why = (f"; read as a wire net whose second family (fundamental at {w2:.2f} rad/s, each line heard by one "
-               "pair) crosses the first at right angles, the right angle checked by combination lines")
+        why = (f"; read as a wire net whose second family (fundamental at {w2:.2f} rad/s, heard by one pair) crosses "
+               "the first at right angles, the right angle checked by combination lines")
         return best._replace(message=best.message + why), ""
 
     def _square_speed(self, fits, slots) -> str:
