@@ -46,9 +46,20 @@ def test_simulate_a_brushed_texture_writes_its_truth(runner, tmp_path):
     assert tex["name"] == "StretchedTexture" and tex["angle"] == pytest.approx(np.radians(30.0))
 
 
+def test_simulate_a_sheared_net_writes_its_truth(runner, tmp_path):
+    rec_path = tmp_path / "net.npz"
+    res = runner.invoke(main, ["simulate", "--out", str(rec_path), "--duration", "0.5", "--texture", "net",
+                               "--angle", "20", "--shear", "10", "--contact-radius", "1e-3"])
+    assert res.exit_code == 0, res.output
+    tex = read_recording(rec_path).truth["texture"]
+    assert tex["name"] == "WireNet" and tex["angle"] == pytest.approx(np.radians(20.0))
+    assert tex["shear"] == pytest.approx(np.radians(10.0))
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [
+        (["simulate", "--out", "{tmp}/x.h5", "--shear", "5"], "--shear applies to --texture net only"),
         (["spectra", "{tmp}/missing.h5", "--out", "{tmp}/o.npz"], "missing.h5: file not found"),
         (["spectra", "{tmp}/garbage.h5", "--out", "{tmp}/o.npz"], "garbage.h5: not a readable HDF5 file"),
         (["spectra", "{tmp}/short.npz", "--out", "{tmp}/o.npz"], "short.npz: recording has N=10 samples"),

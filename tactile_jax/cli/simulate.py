@@ -19,7 +19,9 @@ from .common import parse_floats, user_errors
               " --angle) or modes (300 plane waves, seeded by --seed).")
 @click.option("--pitch", type=float, default=None, help="Grating or net pitch, m (defaults 1.5e-3 and 0.5e-3).")
 @click.option("--angle", type=float, default=0.0, show_default=True,
-              help="Grating wavevector (brushed: ridge normal) angle from the x axis, degrees.")
+              help="Grating or net wavevector (brushed: ridge normal) angle from the x axis, degrees.")
+@click.option("--shear", type=float, default=0.0, show_default=True,
+              help="Net only: the second family's angle off perpendicular to the first, degrees.")
 @click.option("--velocity", default="0.023,0.0", show_default=True, help="Slip vx,vy in m/s.")
 @click.option("--contact-radius", type=float, default=None, help="Contact radius a, m (default 3e-3 unless --contact-depth).")
 @click.option("--contact-depth", type=float, default=None, help="Contact depth, m; a = sqrt(R d) with R = 30 mm.")
@@ -32,8 +34,8 @@ from .common import parse_floats, user_errors
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--records", type=int, default=1, show_default=True, help="Records to write (n, 4, N), seeds seed..seed+n-1.")
 @user_errors
-def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth, window, fs, duration, snr_db,
-             noiseless, gains, seed, records):
+def simulate(out, texture, pitch, angle, shear, velocity, contact_radius, contact_depth, window, fs, duration,
+             snr_db, noiseless, gains, seed, records):
     """Simulate a scene and write it as a recording file with its truth."""
     import math
 
@@ -54,7 +56,9 @@ def simulate(out, texture, pitch, angle, velocity, contact_radius, contact_depth
     elif texture == "modes":
         tex = ModeTexture(seed=seed)
     else:
-        tex = WireNet(pitch=pitch or 0.5e-3)
+        tex = WireNet(pitch=pitch or 0.5e-3, angle=math.radians(angle), shear=math.radians(shear))
+    if shear and texture != "net":
+        raise TactileInputError(f"--shear applies to --texture net only, got --texture {texture}", code="bad_setting")
     if contact_radius is None and contact_depth is None:
         contact_radius = 3e-3
     if records < 1:
