@@ -54,9 +54,10 @@ Identifiability (what the fit assumes and reports):
 - One family heard by both pairs and lines at other frequencies heard by one
   pair each (a net whose second family lies within about 1/a of an axis): read
   as a square net, the right angle supplies the missing component of the
-  second family's fundamental, and the lines are fitted in two directions. That is an assumption, so the
-  speeds are reported only where a combination line measures the supplied
-  component and agrees (``_square_net``); else the family's v_n as above.
+  second family's fundamental, and the lines are fitted in two directions.
+  That is an assumption, so the speeds are reported only where a combination
+  line measures the supplied component and agrees (``_square_net``); else
+  the family's v_n as above, the message giving the unchecked reading.
 - Harmonics heard by one pair alone fix a only if exact (``STRICT_HARMONIC_BINS``)
   and at one radius: the ratio of two inverted wavenumbers is not monotonic in a,
   and where two radii fit, a is undetermined and both are named.
@@ -601,8 +602,8 @@ class _Fitter:
         if v_known is not None:
             self.two_d = (dat.hx | dat.hy)
         self.inv_x, self.inv_y = inv_x, inv_y
-        #: pairs (0 x, 1 y) whose ratios of some lines the right angle of a square net supplied (``_square_net``):
-        #: an ok result then needs a combination line measured in one of them
+        #: the pair (0 x, 1 y) whose ratio of a line the right angle of a square net supplied (``_square_net``):
+        #: an ok result then needs a combination line measured in it
         self.check_pairs = None
         #: what an unchecked square-net reading gives (set by ``_multi_result``; '' where nothing)
         self.reading = ""
