@@ -115,6 +115,9 @@ COMBINATION_K_ERR = 0.01
 DROP_Z = 4.0
 #: harmonics considered for one family
 MAX_HARMONIC = 8
+#: frequency tolerance floor (bins) of a line matched to a harmonic or a family (``_omega_tol``): blended lines sit
+#: up to 0.18 bin off their lattice frequencies on the simulated nets
+HARMONIC_BINS = 0.3
 #: harmonic tolerance floor (bins) where one pair's harmonics alone fix a (or bound a family's normal speed): the
 #: lines of simulated nets sit within 0.0023 bin of their lattice frequencies (95 %), while two lines of different
 #: families of a sheared net 0.4 bin off a 3:5 ratio, read as harmonics, give a = 1.18 +/- 0.01 mm for 2.20
@@ -349,13 +352,19 @@ def _start_k(dat: _Data, a, sel):
     return np.where(sel, kx, np.nan), np.where(sel, ky, np.nan)
 
 
-def _harmonic_numbers(w, sw, d_omega, sel, floor_bins=0.3):
+def _omega_tol(sw, d_omega, floor_bins=HARMONIC_BINS):
+    """How far (rad/s) a line may sit from a frequency it is matched to: 4 of its sigmas ``sw``, at least
+    ``floor_bins`` bins of width ``d_omega``."""
+    return np.maximum(4.0 * np.asarray(sw, float), floor_bins * d_omega)
+
+
+def _harmonic_numbers(w, sw, d_omega, sel, floor_bins=HARMONIC_BINS):
     """(omega0, n (L,)) of the largest fundamental whose harmonics 1..MAX_HARMONIC explain every line in ``sel``
-    (within 4 sigma or ``floor_bins`` bins); (None, zeros) if none does."""
+    (within ``_omega_tol``); (None, zeros) if none does."""
     idx = np.flatnonzero(sel)
     if idx.size == 0:
         return None, np.zeros(w.size)
-    tol = np.maximum(4.0 * sw, floor_bins * d_omega)
+    tol = _omega_tol(sw, d_omega, floor_bins)
     best = None
     for j in idx:
         for h in range(1, MAX_HARMONIC + 1):
@@ -730,7 +739,7 @@ class _Fitter:
             # single-pair lines that are harmonics of the family join it (they carry its a)
             extra = (dat.hx | dat.hy) & ~self.two_d
             n_extra = np.rint(dat.w / w0)
-            tol = np.maximum(4.0 * dat.sw, 0.3 * dat.d_omega)
+            tol = _omega_tol(dat.sw, dat.d_omega)
             join = extra & (n_extra >= 1) & (n_extra <= MAX_HARMONIC) & (np.abs(dat.w - n_extra * w0) <= tol)
             harm = np.where(join, n_extra, harm)
             fam_sel = self.two_d | join
@@ -1092,7 +1101,7 @@ class _Fitter:
         dat = self.dat
         k1x, k1y = math.exp(lx), math.exp(ly)
         single = others & (dat.hx ^ dat.hy)
-        tol = np.maximum(4.0 * dat.sw, 0.3 * dat.d_omega)
+        tol = _omega_tol(dat.sw, dat.d_omega)
         lr_tab, _ = _tables(a, dat.d1, dat.d2)
         lk = np.log(_K_GRID)
         tilt = math.asin(PERPENDICULAR_SIN) * 2.0 / max(abs(math.sin(2.0 * math.atan2(k1x, k1y))), 1e-3)

@@ -69,11 +69,10 @@ def _finite(name: str, value) -> float:
     return v
 
 
-def _anisotropy(name: str, value) -> float:
+def _anisotropy(name: str, value, meaning: str = "power along angle / across it") -> float:
     v = _finite(name, value)
     if v < 1.0:
-        raise TactileInputError(f"{name} must be >= 1 (power along angle / across it), got {value!r}",
-                                code="bad_setting")
+        raise TactileInputError(f"{name} must be >= 1 ({meaning}), got {value!r}", code="bad_setting")
     return v
 
 
@@ -291,9 +290,7 @@ class StretchedTexture:
 
     def __post_init__(self):
         _check_scales("StretchedTexture", self)
-        if _finite("StretchedTexture.aspect", self.aspect) < 1.0:
-            raise TactileInputError(f"StretchedTexture.aspect must be >= 1 (correlation length along the ridges / "
-                                    f"across them), got {self.aspect!r}", code="bad_setting")
+        _anisotropy("StretchedTexture.aspect", self.aspect, "correlation length along the ridges / across them")
         _finite("StretchedTexture.angle", self.angle)
 
     def _power(self, kx, ky, angle: float):
