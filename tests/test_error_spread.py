@@ -1,4 +1,4 @@
-"""The misfit's spread across frequency (``core._spread``): a cluster-robust sandwich over adjacent bins."""
+"""The misfit's spread across frequency (``core._spread``): the delete-one-cluster jackknife over adjacent bins."""
 
 import types
 
@@ -19,7 +19,7 @@ def _data():
     return types.SimpleNamespace(omega=np.zeros(L), meas=meas)
 
 
-def _reference(r, x, cluster):
+def _sandwich(r, x, cluster):
     """Cluster-robust variances over the Laplace ones, centred scores, C / (C - 1): written out in numpy."""
     bread = np.linalg.inv(x.T @ x)
     ids = np.unique(cluster)
@@ -27,6 +27,16 @@ def _reference(r, x, cluster):
     scores -= scores.mean(0)
     meat = len(ids) / (len(ids) - 1) * scores.T @ scores
     return np.diag(bread @ meat @ bread) / np.diag(bread)
+
+
+def _reference(r, x, cluster):
+    """The delete-one-cluster jackknife's variances over the Laplace ones, by refitting the linear model
+    without each cluster: written out in numpy."""
+    bread = np.linalg.inv(x.T @ x)
+    ids = np.unique(cluster)
+    fits = np.stack([np.linalg.lstsq(x[cluster != c], r[cluster != c], rcond=None)[0] for c in ids])
+    fits -= fits.mean(0)
+    return (len(ids) - 1) / len(ids) * np.sum(fits ** 2, 0) / np.diag(bread)
 
 
 def _design(rng, rows):
@@ -39,7 +49,7 @@ def test_rows_follow_the_blocks_layout():
     assert np.bincount(bins).tolist() == [18] * L
 
 
-def test_spread_is_the_cluster_sandwich_and_flags_only_shared_misfit():
+def test_spread_is_the_cluster_jackknife_and_flags_only_shared_misfit():
     rng = np.random.default_rng(5)
     bins = row_bins(_data())
     x = _design(rng, bins.size)
@@ -48,11 +58,15 @@ def test_spread_is_the_cluster_sandwich_and_flags_only_shared_misfit():
     noise = rng.standard_normal(bins.size)
     # a misfit shared by every row of a bin (a lump of the texture spectrum), along the first columns
     lump = (3.0 * rng.standard_normal(L))[bins] * (1.0 + x[:, 1] + x[:, 2])
-    for r, flagged in ((noise, False), (noise + lump, True)):
+    for y, flagged in ((noise, False), (noise + lump, True)):
+        r = y - x @ np.linalg.lstsq(x, y, rcond=None)[0]          # the residuals at the fit
         unit = core._unit_inverse(jnp.asarray(x), jnp.asarray(free))
-        ratios, pooled = core._spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free), unit, _data())
-        ref = _reference(r, x, cluster)
-        np.testing.assert_allclose(np.asarray(ratios)[:3], ref[:3], rtol=1e-8)
-        assert float(pooled) == np.asarray(ratios)[3] == np.asarray(ratios)[4]
-        assert np.isclose(float(pooled), ref[:3].mean(), rtol=1e-8)
-        assert bool(np.any(np.asarray(ratios)[:3] > core.SPREAD_GATE * np.mean(r ** 2))) is flagged
+        ratios, pooled, plain, plain_pooled = core._spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free), unit,
+                                                           _data())
+        for got, got_pooled, ref in ((ratios, pooled, _reference(r, x, cluster)),
+                                     (plain, plain_pooled, _sandwich(r, x, cluster))):
+            np.testing.assert_allclose(np.asarray(got)[:3], ref[:3], rtol=1e-8)
+            assert float(got_pooled) == np.asarray(got)[3] == np.asarray(got)[4]
+            assert np.isclose(float(got_pooled), ref[:3].mean(), rtol=1e-8)
+        assert np.all(np.asarray(ratios)[:3] > np.asarray(plain)[:3])          # the leverage correction widens
+        assert bool(np.any(np.asarray(plain)[:3] > core.SPREAD_GATE * np.mean(r ** 2))) is flagged

@@ -20,7 +20,8 @@
 5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
    through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
    other parameters the three pooled, none below the reduced chi-square; where the
-   misfit's spread across frequency (``_spread``) is over twice that, it sets the ratio;
+   misfit's spread across frequency (``_spread``) is over twice that (in a poor fit: larger), it sets
+   the ratio;
 6. an integer status (``STATUS``) and the reported values.
 
 What only a single record needs (profile-likelihood bounds, more iterations for a fit
@@ -75,9 +76,12 @@ STOP_TOL = 1e-3
 _A_CLIP = (2e-5, 0.05)
 _OWN = 3          # vx, vy, a: each its own jackknife scale
 #: adjacent bins per cluster of the spread across frequency (``_spread``), and the variance ratio over the
-#: jackknife's scale beyond which that spread sets a parameter's error
+#: jackknife's scale beyond which that spread (its plain sandwich) sets a parameter's error; in a poor fit the
+#: larger of the two errors stands
 SPREAD_BINS = 2
 SPREAD_GATE = 2.0
+#: largest leverage of one cluster in the spread's delete-one-cluster shifts (1 / (1 - h) at most 10)
+MAX_LEVERAGE = 0.9
 #: a Hertz disk's radius per Gaussian window radius of the same second moment along a probe (a^2/5 = a_g^2/3)
 HERTZ_PER_GAUSS = (5.0 / 3.0) ** 0.5
 
@@ -421,23 +425,46 @@ def _ratios(shifts, use, g, unit, free, factor=1.0):
     return jnp.where(own, ratio, pooled), pooled
 
 
+def _cluster_rows(data: JointData) -> np.ndarray:
+    """(C, R) the rows of ``blocks`` in each cluster of ``SPREAD_BINS`` adjacent bins, -1 padding (static:
+    from the shapes alone)."""
+    cluster = row_bins(data) // SPREAD_BINS
+    counts = np.bincount(cluster)
+    idx = np.full((counts.size, int(counts.max())), -1)
+    for c, rows in enumerate(np.split(np.argsort(cluster, kind="stable"), np.cumsum(counts)[:-1])):
+        idx[c, :rows.size] = rows
+    return idx
+
+
 def _spread(r, jac, free, unit, data: JointData):
-    """Variance ratios (P,) and the pooled one of the misfit's spread across frequency: the cluster-robust
-    (sandwich) variance over clusters of ``SPREAD_BINS`` adjacent bins, each cluster holding every block's rows
-    at its bins; unit: the unit Laplace covariance. The segment jackknife cannot see a misfit that every
-    segment shares: a texture of a few hundred modes has the same lumpy spectrum in every segment. For a
-    model that fits, the ratio scatters about the reduced chi-square."""
-    bins = row_bins(data)
-    n_clusters = -(-data.omega.shape[-1] // SPREAD_BINS)
-    cluster = jnp.asarray(bins // SPREAD_BINS)
-    rows = bins.shape[0]
-    g_rows = jac[:rows] * free * r[:rows, None]                                     # each row's gradient term
-    grads = jax.ops.segment_sum(g_rows, cluster, num_segments=n_clusters)           # (C, P)
-    use = jax.ops.segment_sum((r[:rows] != 0).astype(r.dtype), cluster, num_segments=n_clusters) > 0
+    """The misfit's spread across frequency: the delete-one-cluster jackknife, linearised, over clusters of
+    ``SPREAD_BINS`` adjacent bins, each cluster holding every block's rows at its bins; unit: the unit Laplace
+    covariance. The segment jackknife cannot see a misfit that every segment shares: a texture of a few
+    hundred modes has the same lumpy spectrum in every segment. Returns the variance ratios (P,) and the
+    pooled one of the bias-reduced cluster sandwich (CR3), then those of the plain sandwich (CR1). For a
+    model that fits, each scatters about the reduced chi-square.
+
+    Leaving cluster c out moves the solution by U J_c^T (I - H_c)^-1 r_c (Woodbury; U the unit covariance,
+    H_c = J_c U J_c^T the cluster's leverage, each eigenvalue capped at ``MAX_LEVERAGE``); the plain sandwich
+    takes H_c = 0, and runs low where the clusters are few for the parameters. On 50 scenes of 300
+    plane-wave modes (24 clusters, a dozen free parameters; Gaussian window) its pulls have a robust sd of
+    1.2 and a 1-sigma coverage of vx, vy, a of 60 / 56 / 54 %, the corrected one's 1.0 and 64 / 58 / 72 %.
+    The plain one is the steadier test of whether a misfit is shared (``finish``)."""
+    idx = _cluster_rows(data)
+    valid = jnp.asarray(idx >= 0)
+    take = jnp.asarray(np.maximum(idx, 0))
+    jc = jnp.where(valid[..., None], (jac * free)[take], 0.0)                       # (C, R, P)
+    rc = jnp.where(valid, r[take], 0.0)                                             # (C, R)
+    lev, vec = jnp.linalg.eigh(jnp.einsum("crp,pq,csq->crs", jc, unit, jc))
+    lev = jnp.clip(lev, 0.0, MAX_LEVERAGE)
+    e = jnp.einsum("crk,ck,csk,cs->cr", vec, 1.0 / (1.0 - lev), vec, rc)           # (I - H_c)^-1 r_c
+    use = jnp.sum(rc != 0, -1) > 0
     g = jnp.maximum(jnp.sum(use), 2)
-    # (J^T J)^-1 g_c are the clusters' scores through the Gauss-Newton map; the sandwich takes g / (g - 1) of
-    # their centred sum of squares, which _ratios' (g - 1) / g turns into
-    return _ratios(grads @ unit, use, g, unit, free, jnp.square(g / (g - 1)))
+    # the shifts U J_c^T e_c; _ratios' (g - 1) / g times their centred sum of squares is the jackknife's, and
+    # (g / (g - 1))^2 of that the plain sandwich's g / (g - 1)
+    corrected = _ratios(jnp.einsum("crp,cr->cp", jc, e) @ unit, use, g, unit, free)
+    plain = _ratios(jnp.einsum("crp,cr->cp", jc, rc) @ unit, use, g, unit, free, jnp.square(g / (g - 1)))
+    return corrected + plain
 
 
 class Start(NamedTuple):
@@ -548,10 +575,14 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
     fallback = jnp.maximum(redchi, 1.0) * jnp.maximum(record.seg.bin_factor, 1.0)
     scales = jnp.where(ran, scales, fallback)
     pooled = jnp.where(ran, pooled, fallback)
-    spread_scales, spread_pooled = _spread(r, jac, free, unit, data)
-    spread = free & (spread_scales > SPREAD_GATE * scales)
+    spread_scales, spread_pooled, plain_scales, plain_pooled = _spread(r, jac, free, unit, data)
+    # the plain sandwich tests for a shared misfit, the corrected one sizes it; a poor fit's misfit is beyond
+    # the segments' noise by definition: there the larger of the two errors stands
+    poor = redchi > POOR_FIT_REDCHI
+    spread = free & jnp.where(poor, spread_scales > scales, plain_scales > SPREAD_GATE * scales)
     scales = jnp.where(spread, spread_scales, scales)
-    pooled = jnp.where(spread_pooled > SPREAD_GATE * pooled, spread_pooled, pooled)
+    pooled = jnp.where(jnp.where(poor, spread_pooled > pooled, plain_pooled > SPREAD_GATE * pooled),
+                       spread_pooled, pooled)
     # lsq's cov carries redchi; the scales replace it
     cov = cov * jnp.sqrt(jnp.outer(scales, scales)) / jnp.where(redchi > 0, redchi, 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0, None))

@@ -267,6 +267,12 @@ def _curves_jit(a, d1, d2):
     return jnp.stack([lr, f])
 
 
+@jax.jit
+def _curves_over(radii, d1, d2):
+    """``_curves_jit`` at each of ``radii`` (n,) m: (n, 2, K), one call (a scan over a fills no cache)."""
+    return jax.vmap(_curves_jit, in_axes=(0, None, None))(radii, d1, d2)
+
+
 def _tables(a, d1, d2):
     out = np.asarray(_curves(float(a), float(d1), float(d2)))
     return out[0], out[1]
@@ -275,7 +281,11 @@ def _tables(a, d1, d2):
 def invert_ratio(log_ratio, a: float, d1: float, d2: float):
     """|k| (rad/m) with log R(|k|; a) = ``log_ratio`` (gain removed), for contact radius ``a`` and depths
     ``d1`` < ``d2`` (m); clipped to [20, 3e5] rad/m (log R decreases monotonically in |k|)."""
-    lr, _ = _tables(a, d1, d2)
+    return _invert_on(_tables(a, d1, d2)[0], log_ratio)
+
+
+def _invert_on(lr, log_ratio):
+    """|k| (rad/m) where the log R table ``lr`` (on ``_K_GRID``) equals ``log_ratio``."""
     return np.exp(np.interp(-np.asarray(log_ratio, float), -lr, np.log(_K_GRID)))
 
 
@@ -1285,10 +1295,11 @@ class _Fitter:
         lr, s, g = (dat.lrx, dat.srx, dat.lgx) if comp == 0 else (dat.lry, dat.sry, dat.lgy)
         sel = harm > 0
         grid = np.geomspace(self.a_grid[0], self.a_grid[-1], 161)
+        tables = np.asarray(_curves_over(jnp.asarray(grid), jnp.asarray(dat.d1), jnp.asarray(dat.d2)))[:, 0]
         cost = np.empty(grid.size)
-        for i, r in enumerate(grid):
-            lk = np.log(invert_ratio(lr[sel] - g, r, dat.d1, dat.d2) / harm[sel])
-            slope = np.log(invert_ratio(lr[sel] - g + 1e-3, r, dat.d1, dat.d2) / harm[sel]) - lk
+        for i, tab in enumerate(tables):
+            lk = np.log(_invert_on(tab, lr[sel] - g) / harm[sel])
+            slope = np.log(_invert_on(tab, lr[sel] - g + 1e-3) / harm[sel]) - lk
             z = (lk - np.average(lk, weights=1.0 / np.square(s[sel] * slope / 1e-3))) / np.abs(s[sel] * slope / 1e-3)
             cost[i] = float(np.sum(np.square(z)))
         pad = np.concatenate([[np.inf], cost, [np.inf]])

@@ -325,8 +325,9 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
         res.set(name, value=g, err=g * float(sd[i]) if free[i] else None, fixed=not free[i])
     set_contact_depth(res, curvature_radius)
     if spread:
-        notes.append(f"the errors of {', '.join(spread)} come from the misfit's spread across frequency, 2x or more "
-                     "the segments' scatter" + (" (a lumpy texture spectrum?)" if status == Status.POOR_FIT else ""))
+        notes.append(f"the errors of {', '.join(spread)} come from the misfit's spread across frequency, "
+                     + ("above the segments' scatter (a lumpy texture spectrum?)" if status == Status.POOR_FIT
+                        else "2x or more the segments' scatter"))
     if res.cond > 1e10:
         notes.append(f"near-degenerate parameters (condition number {res.cond:.2g}): see the correlations")
     if status == Status.POOR_FIT:
