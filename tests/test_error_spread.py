@@ -58,11 +58,10 @@ def test_spread_is_the_cluster_jackknife_and_flags_only_shared_misfit():
     noise = rng.standard_normal(bins.size)
     # a misfit shared by every row of a bin (a lump of the texture spectrum), along the first columns
     lump = (3.0 * rng.standard_normal(L))[bins] * (1.0 + x[:, 1] + x[:, 2])
+    spread = jax.jit(lambda r, x, free: core._spread(r, x, free, core._unit_inverse(x, free), _data()))
     for y, flagged in ((noise, False), (noise + lump, True)):
         r = y - x @ np.linalg.lstsq(x, y, rcond=None)[0]          # the residuals at the fit
-        unit = core._unit_inverse(jnp.asarray(x), jnp.asarray(free))
-        ratios, pooled, plain, plain_pooled = core._spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free), unit,
-                                                           _data())
+        ratios, pooled, plain, plain_pooled = spread(jnp.asarray(r), jnp.asarray(x), jnp.asarray(free))
         for got, got_pooled, ref in ((ratios, pooled, _reference(r, x, cluster)),
                                      (plain, plain_pooled, _sandwich(r, x, cluster))):
             np.testing.assert_allclose(np.asarray(got)[:3], ref[:3], rtol=1e-8)
