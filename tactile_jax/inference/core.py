@@ -579,10 +579,13 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
     # the plain sandwich tests for a shared misfit, the corrected one sizes it; a poor fit's misfit is beyond
     # the segments' noise by definition: there the larger of the two errors stands
     poor = redchi > POOR_FIT_REDCHI
-    spread = free & jnp.where(poor, spread_scales > scales, plain_scales > SPREAD_GATE * scales)
+
+    def shared(corrected, plain, jackknife):      # where the spread sets the error
+        return jnp.where(poor, corrected > jackknife, plain > SPREAD_GATE * jackknife)
+
+    spread = free & shared(spread_scales, plain_scales, scales)
     scales = jnp.where(spread, spread_scales, scales)
-    pooled = jnp.where(jnp.where(poor, spread_pooled > pooled, plain_pooled > SPREAD_GATE * pooled),
-                       spread_pooled, pooled)
+    pooled = jnp.where(shared(spread_pooled, plain_pooled, pooled), spread_pooled, pooled)
     # lsq's cov carries redchi; the scales replace it
     cov = cov * jnp.sqrt(jnp.outer(scales, scales)) / jnp.where(redchi > 0, redchi, 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0, None))
