@@ -110,6 +110,14 @@ def scenes(kind: str, n: int, seed: int = 31):
                     contact_radius=a, snr_db=snr, duration=DURATION, fs=FS, seed=s)
 
 
+def use_cache(folder: Path | None) -> None:
+    """Keep simulated recordings in ``folder`` (created) between runs; None: simulate every time."""
+    global _CACHE
+    _CACHE = folder
+    if folder is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+
+
 def _simulate(scene):
     cached = _CACHE / f"{scene.seed}.npz" if _CACHE else None
     if cached is not None and cached.exists():
@@ -164,34 +172,36 @@ def _line_coefficients(scene, order: int = 16):
     return orders, k0 * (orders[:, :1] * e1 + orders[:, 1:] * e2), c[orders[:, 0] % m, orders[:, 1] % m]
 
 
+def pair_powers(power, kv, depth: float, a: float) -> np.ndarray:
+    """(2, L): each line's power (``power`` (L,), wavevectors ``kv`` (L, 2) rad/m) in the x and the y probe at
+    ``depth`` (m), up to a common factor, by the Gaussian window's line responses (x pair: W(ky) G(|kx|; d, a),
+    y pair alike; ``model.r_curve.log_g``)."""
+    def response(along, across):
+        return np.exp(np.asarray(r_curve.log_g(np.abs(along), depth, a), float) - a * a * across ** 2 / 6.0)
+
+    return power * np.stack([response(kv[:, 0], kv[:, 1]), response(kv[:, 1], kv[:, 0])]) ** 2
+
+
+def welch_noise(shallow: np.ndarray, snr_db: float) -> float:
+    """The simulator's noise power in one default Welch bin, on the scale of ``pair_powers``' ``shallow`` (2, L):
+    the same sigma on every channel, sigma^2 = P_ref 10^(-SNR/10), P_ref the larger shallow power."""
+    return float(np.max(shallow.sum(-1))) * 10.0 ** (-snr_db / 10.0) / default_nperseg(int(DURATION * FS))
+
+
 def heard_by_both_pairs(rec, scene, margin_db: float = HEARD_DB) -> list[bool]:
     """For each line that can fix a direction (a grating's wavevector; a net's two fundamentals and their sum
     and difference, pairwise non-parallel): whether both deep probes hold it ``margin_db`` above the noise
-    in its Welch bin, by the Gaussian window's line responses (x pair: W(ky) G(|kx|; d, a), y pair alike;
-    ``model.r_curve.log_g``) and the simulator's noise (the same sigma on every channel, sigma^2 = P_ref
-    10^(-SNR/10), P_ref the larger shallow power). A line that one pair alone hears gives one wavevector
+    in its Welch bin (``pair_powers``, ``welch_noise``). A line that one pair alone hears gives one wavevector
     component: its direction is unknown. [] for random textures."""
     if not isinstance(scene.texture, (Grating, WireNet)):
         return []
     d1, d2 = (float(d) for d in rec.depths)
-    a = scene.a
     orders, kv, coef = _line_coefficients(scene)
-
-    def response(depth, along, across):      # |amplitude| of a line probe's response, up to a common factor
-        g = np.asarray(r_curve.log_g(np.abs(along), depth, a), float)
-        return np.exp(g - a * a * across ** 2 / 6.0)
-
     power = np.abs(coef) ** 2
-    shallow = max(float(np.sum(power * response(d1, kv[:, 0], kv[:, 1]) ** 2)),
-                  float(np.sum(power * response(d1, kv[:, 1], kv[:, 0]) ** 2)))
-    noise_bin = shallow * 10.0 ** (-scene.snr_db / 10.0) / default_nperseg(int(DURATION * FS))
+    floor = welch_noise(pair_powers(power, kv, d1, scene.a), scene.snr_db) * 10.0 ** (margin_db / 10.0)
+    deep = pair_powers(power, kv, d2, scene.a)
     targets = [(1, 0)] if isinstance(scene.texture, Grating) else [(1, 0), (0, 1), (1, 1), (1, -1)]
-    out = []
-    for nm in targets:
-        j = int(np.flatnonzero((orders == nm).all(1))[0])
-        deep = power[j] * np.array([response(d2, kv[j, 0], kv[j, 1]), response(d2, kv[j, 1], kv[j, 0])]) ** 2
-        out.append(bool(deep.min() >= noise_bin * 10.0 ** (margin_db / 10.0)))
-    return out
+    return [bool(deep[:, int(np.flatnonzero((orders == nm).all(1))[0])].min() >= floor) for nm in targets]
 
 
 def determinable(row) -> bool | None:
@@ -356,10 +366,7 @@ def main(argv=None):
     ap.add_argument("--summarize", type=Path, default=None,
                     help="re-table a saved textures.json (lines heard by both pairs recomputed from --cache)")
     args = ap.parse_args(argv)
-    global _CACHE
-    _CACHE = args.cache
-    if _CACHE is not None:
-        _CACHE.mkdir(parents=True, exist_ok=True)
+    use_cache(args.cache)
     kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
     bad = [k for k in kinds if k not in KINDS]
     if bad or args.scenes < 1:
