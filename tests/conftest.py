@@ -57,7 +57,8 @@ def pytest_sessionfinish(session):
 #: modules that run the joint pipeline end to end: one worker runs them all, so that its compiled program
 #: serves every one of them (a second worker would compile it again); the others run beside it
 JOINT_MODULES = {"test_fit.py", "test_cli_edges.py", "test_batch.py", "test_fit_cli.py", "test_model_select.py",
-                 "test_cli.py", "test_examples.py", "test_stability.py", "test_reproduce.py", "test_spectra_files.py"}
+                 "test_cli.py", "test_examples.py", "test_stability.py", "test_reproduce.py", "test_spectra_files.py",
+                 "test_analysis.py"}
 
 
 #: modules whose module-scoped fixtures take seconds: each runs on one worker, so that they are built once

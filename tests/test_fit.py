@@ -13,12 +13,10 @@ from conftest import GAUSS, compilations
 from tactile_jax.errors import TactileInputError
 from tactile_jax.inference.options import FitOptions
 from tactile_jax.inference.fit import fit_recording, fit_spectra
-from tactile_jax.inference.result import result_from_summary
 from tactile_jax.inference.forward import ANISO, INDEX
 from tactile_jax.inference.select import lobe_of
 from tactile_jax.io.files import read_spectra, write_recording
 from tactile_jax.inference import run
-from tactile_jax.inference.core import Settings
 from tactile_jax.io.recording import Recording
 from tactile_jax.simulation.scene import Scene, simulate
 from tactile_jax.simulation.texture import DirectionalTexture, Grating, ModeTexture, RandomTexture, StretchedTexture
@@ -60,18 +58,33 @@ def test_oblique_slip_small_contact_recovered(oblique):
     assert np.ptp(list(res.error_scales.values())) > 0.01
 
 
-def test_fit_and_batch_run_the_same_program(oblique):
-    """The batch's chunks and the single fit give the same values: one program (``core``)."""
+def test_fit_and_batch_run_the_same_program(oblique, tmp_path):
+    """One program: a chunk gives the single record's values and errors, and a batch's row equals the fit's,
+    row by row."""
+    from tactile_jax.batch.run import run_batch
+    from tactile_jax.inference.fit import record_of
+    from tactile_jax.inference.options import analysis_settings, choices_of
+    from tactile_jax.io.results import read_results
+
     _, rec, res = oblique
-    r = run.record(np.asarray(rec.signals, float), rec.fs, rec.depths)
-    one = run.fit_one(r, Settings())
-    many = run.fit_many([r, r], Settings())
-    for s in many:
-        assert np.allclose(s.theta, one.theta, rtol=0, atol=1e-6 * np.abs(one.sd).max())
-        assert np.allclose(s.sd, one.sd, rtol=1e-6)
-    row = result_from_summary(many[0], curvature_radius=0.03)
-    kept = result_from_summary(res.summary, curvature_radius=0.03)   # the fit's summary, before model averaging
-    assert row.vx == pytest.approx(kept.vx, rel=1e-6) and row.a == pytest.approx(kept.a, rel=1e-6)
+    options = FitOptions(**GAUSS)
+    r = record_of(np.asarray(rec.signals, float), rec.fs, rec.depths, options)
+    settings, choices = analysis_settings(options), choices_of(options)
+    one = run.analyse_one(r, settings, choices)
+    for a in run.analyse_many([r] * 2, settings, choices, vmapped=False):
+        assert np.allclose(a.summary.theta, one.summary.theta, rtol=0, atol=1e-6 * np.abs(one.summary.sd).max())
+        assert np.allclose(a.summary.sd, one.summary.sd, rtol=1e-6)
+        assert int(a.summary.status) == int(one.summary.status) and int(a.texture) == int(one.texture)
+    write_recording(tmp_path / "rec.h5", rec)
+    run_batch([tmp_path / "rec.h5"], tmp_path / "rows.json", progress=False, options=options)
+    row, mine = read_results(tmp_path / "rows.json")[0], res.to_record()
+    for key in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth", "redchi", "window_margin",
+                "texture_margin"):
+        assert (row[key] is None) == (mine[key] is None), key
+        if mine[key] is not None:
+            assert row[key] == pytest.approx(mine[key], rel=1e-9), key
+    for key in ("status", "window", "texture", "direction", "model"):
+        assert row[key] == mine[key], key
 
 
 def test_new_recording_shapes_do_not_compile_again(oblique):

@@ -134,105 +134,111 @@ def test_a_large_hertz_disk_at_a_slow_slip_is_found_from_the_hertz_programs_own_
         assert res.vx == pytest.approx(0.011616, rel=0.02) and res.a == pytest.approx(2.6504e-3, rel=0.02)
 
 
-def _summary(chi2, redchi, theta=None, status=0):
+def _stages(**ran):
+    """``analysis.Stages`` with the named stages run (name -> dict of chi2, redchi, theta, free, status, n_data):
+    what the program's choices read."""
     import types
 
-    theta = np.log(np.r_[0.03, 0.001, 2e-3, np.ones(16)]) if theta is None else theta
-    return types.SimpleNamespace(theta=theta, free=np.ones(19, bool), chi2=chi2, redchi=redchi, status=status)
+    from tactile_jax.inference import analysis as an
+    from tactile_jax.inference.forward import N_PHYS
+
+    k, p = len(an.STAGES), N_PHYS + 12
+    st = types.SimpleNamespace(theta=np.zeros((k, p)), free=np.ones((k, p), bool), chi2=np.full(k, np.inf),
+                               redchi=np.full(k, np.inf), n_data=np.full(k, 400.0), status=np.full(k, 4),
+                               active=np.zeros(k, bool), hertz=np.zeros(k, bool))
+    for name, fields in ran.items():
+        i = an.STAGES.index(name)
+        st.active[i], st.status[i] = True, 0
+        for key, value in fields.items():
+            getattr(st, key)[i] = value
+    return st
 
 
-@pytest.mark.parametrize("chi_h, red_h, chi_g, red_g, bin_factor, window, decisive, kept", [
-    (400.0, 1.0, 500.0, 1.25, 1.0, "hertz", True, "hertz"),          # Hertz fits better by 100 (scale 1)
-    (500.0, 1.25, 400.0, 1.0, 1.94, "gaussian", True, "gaussian"),   # Gaussian by 100 / 1.94
-    (400.0, 1.0, 405.0, 1.01, 1.94, "hertz", False, "hertz"),        # 2.6 < 6: undecided, the Hertz estimates
-    (1000.0, 2.5, 990.0, 1.8, 1.94, "gaussian", False, "gaussian"),  # undecided, only the Gaussian describes them
+@pytest.mark.parametrize("chi_h, red_h, chi_g, red_g, bin_factor, window, decisive", [
+    (400.0, 1.0, 500.0, 1.25, 1.0, "hertz", True),          # Hertz fits better by 100 (scale 1)
+    (500.0, 1.25, 400.0, 1.0, 1.94, "gaussian", True),      # Gaussian by 100 / 1.94
+    (400.0, 1.0, 405.0, 1.01, 1.94, "hertz", False),        # 2.6 < 6: undecided, the Hertz fit kept
+    (1000.0, 2.5, 990.0, 1.8, 1.94, "gaussian", False),     # undecided, only the Gaussian describes the spectra
 ])
-def test_window_choice_by_chi_square_margin(chi_h, red_h, chi_g, red_g, bin_factor, window, decisive, kept):
+def test_window_choice_by_chi_square_margin(chi_h, red_h, chi_g, red_g, bin_factor, window, decisive):
     """The margin is the chi-square difference over the bin factor times the better fit's reduced
-    chi-square (at least 1); below ``WINDOW_DECISIVE`` the note says the data cannot tell, with the other
-    window's estimates."""
-    hertz, gauss = _summary(chi_h, red_h), _summary(chi_g, red_g, theta=np.log(np.r_[0.031, 0.001, 1.5e-3,
-                                                                                        np.ones(16)]))
-    starts = []
-    got, name, margin, note, other, weight = ms.choose_window(hertz, lambda th, fr: starts.append(th) or gauss,
-                                                              bin_factor=bin_factor)
-    assert name == window and got is (hertz if kept == "hertz" else gauss)
-    # undecided: the other window's fit comes along with the kept one's Akaike weight, for the average
-    assert (other is None) == decisive
-    if not decisive:
-        assert other is (gauss if kept == "hertz" else hertz)
-        w_hertz = 1.0 / (1.0 + np.exp(-0.5 * margin))
-        assert weight == pytest.approx(w_hertz if kept == "hertz" else 1.0 - w_hertz)
+    chi-square (at least 1); below ``WINDOW_DECISIVE`` the other window's fit is averaged in with the kept
+    one's Akaike weight."""
+    from tactile_jax.inference import analysis as an
+
+    st = _stages(H1=dict(chi2=chi_h, redchi=red_h), GW1=dict(chi2=chi_g, redchi=red_g))
+    got = an._compare_windows(st, an.H1, an.GW1, bin_factor)
+    kept = an.H1 if window == "hertz" else an.GW1
+    assert int(got.kept) == kept
     expected = (chi_g - chi_h) / (max(bin_factor, 1) * max(min(red_h, red_g), 1))
-    assert margin == pytest.approx(abs(expected) if decisive else expected)
-    assert (abs(margin) >= ms.WINDOW_DECISIVE) == decisive
-    assert ("cannot tell" in note) == (not decisive)
-    if not decisive:
-        other_name = "Gaussian" if kept == "hertz" else "Hertz"
-        assert f"the {other_name} window alone gives |vx| = {3.1 if kept == 'hertz' else 3:.4g}" in note
-    # the Gaussian refit starts from the Hertz optimum with a scaled to the same second moment
-    from tactile_jax.inference.core import HERTZ_PER_GAUSS
-    assert np.exp(starts[0][2]) == pytest.approx(2e-3 / HERTZ_PER_GAUSS)
-    no_band = _summary(1.0, 1.0, status=1)                        # nothing to compare: no refit
-    got = ms.choose_window(no_band, None)
-    assert got.summary is no_band and tuple(got[1:]) == ("hertz", None, "", None, 1.0)
+    assert float(got.margin) == pytest.approx(expected)
+    assert (abs(float(got.margin)) >= ms.WINDOW_DECISIVE) == decisive
+    assert (int(got.other) == -1) == decisive
+    w_hertz = 1.0 / (1.0 + np.exp(-0.5 * expected))
+    assert float(got.weight) == pytest.approx(1.0 if decisive else (w_hertz if window == "hertz" else 1 - w_hertz))
+    no_band = _stages(H1=dict(chi2=1.0, redchi=1.0, status=1), GW1=dict(chi2=1.0, redchi=1.0))
+    got = an._compare_windows(no_band, an.H1, an.GW1, 1.0)                  # nothing to compare
+    assert int(got.kept) == an.H1 and np.isnan(float(got.margin)) and float(got.weight) == 1.0
+
+
+def test_the_gaussian_refit_starts_from_the_hertz_radius_of_the_same_second_moment():
+    """The window choice's numbers turn into words at the edge (``describe.notes_of``)."""
+    import types
+
+    from tactile_jax.inference.describe import notes_of
+
+    a = types.SimpleNamespace(explored=False, window_margin=2.6, window_weight=0.78, window=1,
+                              window_other=np.log([0.031, 0.001, 1.5e-3]), texture_note=0, texture_margin=np.nan,
+                              direction=0, window_needed=True)
+    notes, warnings = notes_of(a)
+    assert "cannot tell the contact windows apart (margin +2.6)" in notes[0]
+    assert "the Gaussian window alone gives |vx| = 3.1" in notes[0] and not warnings
+    a.window_margin, a.window_weight, a.window = -51.0, 1.0, 0
+    assert notes_of(a)[0] == ["Gaussian contact window (chi-square margin 51.0 over the Hertz disk)"]
 
 
 @pytest.mark.parametrize("vy, rise, scale, held", [
     (0.001, 1.5, 1.0, True),         # within 1.4 sigma of 0: a fitted vy would be noise
     (0.001, 5.0, 1.0, False),        # holding it costs 5 > 2: the data need it
     (0.001, 5.0, 3.0, True),         # ... unless its error scale (jackknife) is 3: 5 / 3 < 2
-    (0.012, 0.0, 1.0, False),        # 0.4 of the major speed: not tested, no refit
+    (0.012, 0.0, 1.0, False),        # 0.4 of the major speed: not tested
 ])
 def test_a_minor_speed_the_data_do_not_need_is_held_at_0(vy, rise, scale, held):
     """Akaike's criterion in units of the minor speed's error scale: held where the refit with it at
     ``AXIS_FLOOR`` of the major speed raises chi-square by at most 2 of that scale."""
-    import types
+    from tactile_jax.inference import analysis as an
 
-    base = _summary(400.0, 1.0, theta=np.log(np.r_[0.03, vy, 2e-3, np.ones(16)]))
-    base.scales = np.full(19, scale)
-    axis = types.SimpleNamespace(theta=base.theta, free=base.free.copy(), chi2=400.0 + rise, status=0)
-    calls = []
-
-    def refit(theta, free):
-        calls.append((np.asarray(theta).copy(), np.asarray(free).copy()))
-        axis.free = np.asarray(free).copy()
-        return axis
-
-    got, name, margin, note = ms.choose_direction(base, refit)
-    assert (got is axis) == held and name == ("along x" if held else "oblique")
-    if vy > ms.DIRECTION_TESTED * 0.03:
-        assert not calls and margin is None and note == ""
-        return
-    theta, free = calls[0]
-    assert np.exp(theta[1]) == pytest.approx(ms.AXIS_FLOOR * 0.03) and not free[1] and free[0]
-    assert margin == pytest.approx(abs(2.0 - rise / scale))
-    assert ("vy held at 0" in note) == held
-    assert ms.direction_name(free) == "along x" and ms.direction_name(base.free) == "oblique"
+    theta = np.r_[np.log([0.03, vy, 2e-3]), np.zeros(20)]
+    st = _stages(T2=dict(chi2=400.0, redchi=1.0, theta=theta))
+    choices = an.Choices()
+    minor, tested = an._minor(st, an.T2, choices)
+    assert int(minor) == 1 and bool(tested) == (vy < ms.DIRECTION_TESTED * 0.03)
+    if tested:
+        st.active[an.DA], st.status[an.DA], st.chi2[an.DA] = True, 0, 400.0 + rise
+    kept, margin, forced = an._direction_fit(st, an.T2, choices, np.full(st.theta.shape[1], scale))
+    assert (int(kept) == an.DA) == held and not bool(forced)
+    if tested:
+        assert float(margin) == pytest.approx(abs(2.0 - rise / scale))
+    else:
+        assert np.isnan(float(margin))
 
 
 def test_a_given_slip_direction_is_held_whatever_the_data_say():
-    """``FitOptions.direction``: "oblique" refits nothing; "along y" holds vx at 0 even as the major speed;
+    """``FitOptions.direction``: "oblique" tests nothing; "along y" holds vx at 0 even as the major speed;
     an unknown direction is a one-line input error."""
-    import types
-
     from tactile_jax.errors import TactileInputError
-    from tactile_jax.inference.options import FitOptions, settings_of
+    from tactile_jax.inference import analysis as an
+    from tactile_jax.inference.options import FitOptions, choices_of, settings_of
 
-    base = _summary(400.0, 1.0, theta=np.log(np.r_[0.03, 0.001, 2e-3, np.ones(16)]))
-    base.scales = np.ones(19)
-    calls = []
-
-    def refit(theta, free):
-        calls.append((np.asarray(theta).copy(), np.asarray(free).copy()))
-        return types.SimpleNamespace(theta=theta, free=free, chi2=9e9, status=0)
-
-    got, name, margin, note = ms.choose_direction(base, refit, "oblique")
-    assert got is base and name == "oblique" and margin is None and not calls
-    got, name, margin, note = ms.choose_direction(base, refit, "along y")
-    theta, free = calls[0]
-    assert name == "along y" and margin is None and not free[0] and free[1]
-    assert np.exp(theta[0]) == pytest.approx(ms.AXIS_FLOOR * 0.001) and note == "slip along y (given): vx held at 0"
+    theta = np.r_[np.log([0.03, 0.001, 2e-3]), np.zeros(20)]
+    st = _stages(T2=dict(chi2=400.0, redchi=1.0, theta=theta))
+    assert not bool(an._minor(st, an.T2, choices_of(FitOptions(direction="oblique")))[1])
+    along_y = choices_of(FitOptions(direction="along y"))
+    minor, tested = an._minor(st, an.T2, along_y)
+    assert int(minor) == 0 and bool(tested)
+    st.active[an.DA], st.status[an.DA], st.chi2[an.DA] = True, 0, 9e9
+    kept, margin, forced = an._direction_fit(st, an.T2, along_y, np.ones(st.theta.shape[1]))
+    assert int(kept) == an.DA and bool(forced) and np.isnan(float(margin))
     with pytest.raises(TactileInputError, match="direction must be one of oblique, along x, along y"):
         settings_of(FitOptions(direction="sideways"))
 
@@ -268,40 +274,35 @@ def test_windows_the_data_cannot_tell_apart_are_averaged():
 
 def test_texture_models_the_data_barely_tell_apart_are_averaged():
     """A directional lobe that AIC does not keep by a margin of TEXTURE_AVERAGED still enters: the isotropic
-    fit is kept, the second-harmonic one returned with the isotropic Akaike weight; a decisive lobe is kept
-    alone, refitted to its fourth harmonic."""
-    import types
-
+    fit is kept and the second-harmonic one averaged in with the isotropic Akaike weight; a decisive lobe is
+    kept alone and refitted to its fourth harmonic (T4); a lobe that does not describe the spectra is not."""
+    from tactile_jax.inference import analysis as an
     from tactile_jax.inference.forward import ANISO, INDEX, N_PHYS
-    from tactile_jax.status import FIT_CODES, Status
 
-    n = N_PHYS + 4
-    free = np.ones(n, bool)
-    free[[INDEX[name] for name in ANISO]] = False
-    iso = types.SimpleNamespace(status=FIT_CODES.index(Status.OK), free=free, theta=np.zeros(n), n_data=400.0,
-                                chi2=400.0, redchi=1.0, sd=np.full(n, 0.05))
+    n = N_PHYS + 12
+    iso_free = np.ones(n, bool)
+    iso_free[[INDEX[name] for name in ANISO]] = False
+    dir_free = iso_free.copy()
+    dir_free[[INDEX[name] for name in ANISO[:2]]] = True
 
-    def directional(drop, shift=0.1):
-        def refit(theta, fr):
-            return types.SimpleNamespace(theta=np.full(n, shift), free=fr, chi2=400.0 - drop,
-                                         redchi=(400.0 - drop) / 390, sd=np.full(n, 0.05))
-        return refit
+    def stages(drop, redchi=None):
+        return _stages(GW1=dict(chi2=400.0, redchi=1.0, free=iso_free),
+                       T2=dict(chi2=400.0 - drop, redchi=redchi or (400.0 - drop) / 390, free=dir_free))
 
-    close = ms.choose_texture(iso, directional(3.0))         # AIC: -3 for the lobe against +4 for its 2 harmonics
-    margin = 4.0 - 3.0 / (397.0 / (400.0 - n + 2))             # the quasi-likelihood scale: directional chi2 / dof
-    assert close.name == "isotropic" and close.summary is iso and close.other is not None
-    assert close.margin == pytest.approx(margin, rel=1e-6)
-    assert close.weight == pytest.approx(1.0 / (1.0 + np.exp(-0.5 * margin)))
-    assert close.note.startswith("isotropic texture by AIC") and "averaged with the directional fit (weight" in close.note
-    # the same margin, and the directional fit's values within a tenth of an error of the isotropic ones
-    quiet = ms.choose_texture(iso, directional(3.0, shift=0.001))
-    assert quiet.other is not None and quiet.weight == close.weight and quiet.note == ""
-    decisive = ms.choose_texture(iso, directional(60.0))
-    assert decisive.name == "directional" and decisive.other is None and decisive.weight == 1.0
-    assert decisive.margin > ms.TEXTURE_AVERAGED and decisive.note.startswith("directional texture (AIC margin")
-    # detected by the second harmonic, estimated with all four coefficients
-    assert ms.texture_name(decisive.summary.free) == "directional" and decisive.summary.free.all()
-    assert close.other.free.sum() == n - 2
+    close = an._texture_fit(stages(3.0), an.GW1, 1.0)       # AIC: -3 for the lobe against +4 for its 2 harmonics
+    margin = 4.0 - 3.0 / max(397.0 / (400.0 - dir_free.sum()), 1.0)
+    assert int(close.index) == an.GW1 and int(close.other) == an.T2 and int(close.note) == 4
+    assert float(close.margin) == pytest.approx(margin, rel=1e-6)
+    assert float(close.weight) == pytest.approx(1.0 / (1.0 + np.exp(-0.5 * margin)))
+    decisive = an._texture_fit(stages(60.0), an.GW1, 1.0)
+    assert int(decisive.index) == an.T2 and int(decisive.other) == -1 and float(decisive.weight) == 1.0
+    assert float(decisive.margin) > ms.TEXTURE_AVERAGED and int(decisive.note) == 3 and bool(decisive.directional)
+    st = stages(60.0)
+    st.active[an.T4], st.status[an.T4], st.chi2[an.T4], st.free[an.T4] = True, 0, 339.0, True
+    assert int(an._texture_fit(st, an.GW1, 1.0).index) == an.T4
+    lumpy = _stages(GW1=dict(chi2=2000.0, redchi=5.0, free=iso_free), T2=dict(chi2=1500.0, redchi=3.8, free=dir_free))
+    poor = an._texture_fit(lumpy, an.GW1, 1.0)
+    assert int(poor.index) == an.GW1 and int(poor.note) == 2 and np.isnan(float(poor.margin))
     res, other = FitResult(), FitResult()
     res.set("vx", value=0.0200, err=0.0002)
     other.set("vx", value=0.0206, err=0.0003)
@@ -311,30 +312,14 @@ def test_texture_models_the_data_barely_tell_apart_are_averaged():
 
 
 def test_window_needed_is_a_likelihood_ratio_test():
-    """A loosely measured a is tested against a -> infinity; the slip refit decides, at 2.71 x the scale."""
-    import types
+    """A loosely measured a is tested against a -> infinity: needed where the rise reaches 2.71 x a's scale."""
+    from tactile_jax.inference import analysis as an
 
-    summary = types.SimpleNamespace(theta=np.zeros(19), sd=np.full(19, 0.01), scales=np.ones(19), chi2=100.0)
-    free = np.ones(19, bool)
-    calls = []
-
-    def refit(theta, fr):
-        calls.append((np.asarray(theta).copy(), np.asarray(fr).copy()))
-        return chi2
-
-    # a measured to 1 %: not tested, no refit
-    chi2 = 1e9
-    assert ms.window_needed(summary, free, refit) == (True, "") and not calls
-    # loose: the slip refit (a held at 0.1 m, not free) is far worse: the window is needed
-    summary.sd[2] = 0.3
-    assert ms.window_needed(summary, free, refit) == (True, "")
-    theta, fr = calls[-1]
-    assert theta[2] == pytest.approx(np.log(ms.A_NEGLIGIBLE)) and not fr[2] and fr[[0, 1]].all()
-    # and no worse within 2.71 x a's variance scale: the window is not needed
-    chi2 = 100.0 + 2.0
-    summary.scales[2] = 1.5
-    needed, note = ms.window_needed(summary, free, refit)
-    assert not needed and "do not need the contact window" in note
+    assert bool(an._window_needed(False, np.inf, 100.0, 1.0)[0])             # not tested
+    assert bool(an._window_needed(True, 1e9, 100.0, 1.0)[0])
+    needed, rise, threshold = an._window_needed(True, 102.0, 100.0, 1.5)
+    assert not bool(needed) and float(rise) == 2.0 and float(threshold) == pytest.approx(2.71 * 1.5)
+    assert bool(an._window_needed(True, np.nan, 100.0, 1.0)[0])
 
 
 def test_the_lobe_is_described_by_its_direction_and_contrast():

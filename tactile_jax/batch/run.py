@@ -35,17 +35,20 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import TactileInputError
+from ..status import FIT_RAN as STATUS_FIT_RAN, TRANSIENT
 from ..inference.options import FitOptions
 from ..inference.result import RESULT_FIELDS
 
 __all__ = ["BatchSummary", "run_batch", "scan_inputs", "TRANSIENT_STATUSES", "DEFAULT_MODEL"]
 
 #: statuses of rows that a resumed batch computes again (failures of the machinery, not of the data)
-TRANSIENT_STATUSES = ("worker_error",)
+TRANSIENT_STATUSES = tuple(s.value for s in TRANSIENT)
 #: statuses of a fit that ran and produced values (the others count as failed)
-FIT_RAN = ("ok", "not_converged", "poor_fit")
+FIT_RAN = tuple(s.value for s in STATUS_FIT_RAN)
 #: the model a batch fits: the joint pipeline of ``fit`` (each row names the scene model it fitted)
 DEFAULT_MODEL = "joint"
+#: fewest records per process worth spawning one for (its start and program load cost about as much)
+MIN_PER_PROCESS = 8
 
 
 @dataclasses.dataclass
@@ -268,11 +271,10 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     if cache_dir and not jax.config.jax_compilation_cache_dir:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    from ..inference.options import options_from_file, settings_of
-    from ..inference.fit import averaged, record_of, refine, with_line_model
-    from ..inference.result import result_from_summary
+    from ..inference.options import analysis_settings, choices_of, options_from_file
+    from ..inference.select import options_for
+    from ..inference.fit import record_of, result_of, with_line_model
     from ..inference import run
-    from ..inference.select import model_name
     from ..io.recording import Recording, validate_recording
 
     t0 = time.perf_counter()
@@ -280,7 +282,8 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     rows: dict[int, dict] = {}
     good, recs, metas = [], [], []
     pos = 0
-    settings = settings_of(options)
+    options = options_for(options)
+    settings, choices = analysis_settings(options), choices_of(options)
     timings = {"read": 0.0, "spectra": 0.0, "fit": 0.0}
     for info, (_, start, stop) in zip(infos_part, segments):
         try:
@@ -312,24 +315,22 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     if good:
         t1 = time.perf_counter()
         try:
-            refined = [refine(r, settings, s, options) for r, s in zip(recs, run.fit_many(recs, settings, size))]
-            for (p, src, i), r, f, (vel, radius, signals, fs, opts) in zip(good, recs, refined, metas):
-                s = f.summary
-                res = result_from_summary(s, velocity=vel, curvature_radius=radius, file=src, index=i,
-                                          model=model_name(s.free, vel is not None), segments=r.seg)
-                res.window, res.window_margin = f.window, f.window_margin
-                res.texture, res.texture_margin = f.texture, f.texture_margin
-                res.direction, res.direction_margin = f.direction, f.direction_margin
-                res.message = "; ".join(m for m in (res.message, *f.notes) if m)
-                res = averaged(res, f, velocity=vel, curvature_radius=radius)
-                res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,
-                                      source=src)
-                res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
-                rows[p] = {**res.to_record(), "options": tag}
+            analyses = run.analyse_many(recs, settings, choices, size)
         except Exception as exc:  # noqa: BLE001 - a failure of the machinery: transient, redone on resume
             text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
             for p, src, i in good:
                 rows[p] = _error_row(src, i, "worker_error", f"{src}: the chunk failed: {text}", model, tag)
+            analyses = []
+        for (p, src, i), r, a, (vel, radius, signals, fs, opts) in zip(good, recs, analyses, metas):
+            try:        # one record's failure stays its row
+                res = result_of(a, r, opts, curvature_radius=radius, file=src, index=i)
+                res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,
+                                      source=src)
+                res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
+                rows[p] = {**res.to_record(), "options": tag}
+            except Exception as exc:  # noqa: BLE001
+                text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+                rows[p] = _error_row(src, i, "fit_error", f"{src}: {text}", model, tag)
         timings["fit"] += time.perf_counter() - t1
     return [rows[k] for k in sorted(rows)], timings
 
@@ -360,7 +361,8 @@ def _key(row: dict):
 
 
 def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 32, workers: int | None = None,
-              scheduler: str | None = None, progress: bool = True, resume: bool = True) -> BatchSummary:
+              scheduler: str | None = None, progress: bool = True, resume: bool = True,
+              processes: int | None = None) -> BatchSummary:
     """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
 
     inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
@@ -372,6 +374,9 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     chunk_size: records per compiled call (memory grows with it, not with the batch).
     workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
     scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
+    processes: without Dask, the chunks run on this many spawned processes (None: one per CPU core;
+        1: in this process). A batch of fewer than ``2 * MIN_PER_PROCESS`` records runs here, and the
+        chunks are made small enough that every process gets one.
     progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
         status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
 
@@ -390,6 +395,8 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
         raise TactileInputError(f"chunk_size must be an int >= 1; got {chunk_size!r}", code="bad_setting")
+    if processes is not None and (isinstance(processes, bool) or int(processes) < 1):
+        raise TactileInputError(f"processes must be >= 1; got {processes!r}", code="bad_setting")
     if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
         raise TactileInputError(f"workers must be >= 1; got {workers!r}", code="bad_setting")
     if workers is not None or scheduler is not None:
@@ -416,6 +423,10 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
             rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model, tag))
     chunks = _plan(infos, done, int(chunk_size))
     total = sum(stop - start for _, segs in chunks for _, start, stop in segs)
+    local = workers is None and scheduler is None
+    n_proc = min(int(processes or os.cpu_count() or 1), max(total // MIN_PER_PROCESS, 1)) if local else 1
+    if n_proc > 1 and len(chunks) < n_proc:           # every process a chunk
+        chunks = _plan(infos, done, max(1, math.ceil(total / n_proc)))
     timings = {"scan": t_scan, "read": 0.0, "spectra": 0.0, "fit": 0.0, "write": 0.0}
     from tqdm.auto import tqdm
 
@@ -441,9 +452,11 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     x64 = bool(jax.config.jax_enable_x64)
     cache_dir = jax.config.jax_compilation_cache_dir or None
     try:
-        if workers is None and scheduler is None:
+        if local and n_proc <= 1:
             for size, segs in chunks:
                 consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
+        elif local:
+            _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_dir)
         else:
             _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
     finally:
@@ -463,6 +476,34 @@ def _hashable(options: FitOptions) -> FitOptions:
         g = tuple(float(v) for v in np.atleast_1d(np.asarray(g, float)))
     v = None if options.velocity is None else tuple(float(x) for x in options.velocity)
     return dataclasses.replace(options, gain_ratio=g, velocity=v)
+
+
+def _lost(part, segs, exc, model, tag) -> list[dict]:
+    """The rows of a chunk whose worker failed (transient: redone on resume)."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+    return [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model, tag)
+            for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)]
+
+
+def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_dir):
+    """The chunks on ``n_proc`` spawned processes (JAX does not survive ``fork``), each loading the compiled
+    program from the persistent cache where one is set. Processes, not threads: two executions of the
+    program at once in one process deadlock jaxlib's CPU runtime on a 2-core machine."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    tag = options_tag(options)
+    with ProcessPoolExecutor(n_proc, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {}
+        for size, segs in chunks:
+            part = [infos[fi] for fi, _, _ in segs]
+            futures[pool.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir)] = (part, segs)
+        for fut in as_completed(futures):
+            part, segs = futures[fut]
+            try:
+                consume(*fut.result())
+            except Exception as exc:  # noqa: BLE001 - a lost process: the chunk's rows say so (transient)
+                consume(_lost(part, segs, exc, model, tag), {"read": 0.0, "spectra": 0.0, "fit": 0.0})
 
 
 def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
@@ -493,10 +534,7 @@ def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, c
                 try:
                     consume(*fut.result())
                 except Exception as exc:  # noqa: BLE001 - a lost worker: the chunk's rows say so (transient)
-                    text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
-                    lost = [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model, tag)
-                            for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)]
-                    consume(lost, {"read": 0.0, "spectra": 0.0, "fit": 0.0})
+                    consume(_lost(part, segs, exc, model, tag), {"read": 0.0, "spectra": 0.0, "fit": 0.0})
         finally:
             client.close()
             if cluster is not None:

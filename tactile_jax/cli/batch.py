@@ -11,6 +11,8 @@ from .common import parse_floats, user_errors
 @click.argument("inputs", nargs=-1, required=True, type=click.Path())
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
               help="Results file: .json, .csv or .parquet (needs pyarrow); rerunning with it resumes.")
+@click.option("--processes", type=int, default=None,
+              help="Spawned processes the chunks run on (default: one per CPU core; 1: this process).")
 @click.option("--workers", type=int, default=None, help="Run on a local Dask cluster of N spawned processes.")
 @click.option("--scheduler", default=None, help="Address of a running Dask scheduler (tcp://host:8786).")
 @click.option("--chunk-size", type=int, default=32, show_default=True,
@@ -27,7 +29,7 @@ from .common import parse_floats, user_errors
 @click.option("--no-resume", is_flag=True, help="Start afresh instead of skipping rows already in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line; the summary only.")
 @user_errors
-def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, window, texture, direction,
+def batch(inputs, out, processes, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, window, texture, direction,
           no_resume, quiet):
     """Fit slip velocity and contact radius to every record under INPUTS (files or folders).
 
@@ -45,7 +47,7 @@ def batch(inputs, out, workers, scheduler, chunk_size, velocity, fit_gain, npers
     options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg, window=window, texture=texture,
                          direction=direction and direction.replace("-", " "))
     summary = run_batch(list(inputs), out, options=options, chunk_size=chunk_size, workers=workers,
-                        scheduler=scheduler, progress=not quiet, resume=not no_resume)
+                        scheduler=scheduler, progress=not quiet, resume=not no_resume, processes=processes)
     t = summary.timings
     rate = summary.n_fitted / t["total"] if t["total"] > 0 else 0.0
     click.echo(f"wrote {summary.out}: {summary.n_rows} rows ({summary.n_fitted} fitted now, {summary.n_skipped} "

@@ -8,10 +8,10 @@ import sys
 import click
 
 from ..errors import TactileInputError
+from ..status import FIT_RAN
 from .common import parse_floats, user_errors
 
 
-_FIT_RAN = ("ok", "not_converged", "poor_fit")     # statuses of a fit that ran and produced values
 _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`` run
 
 
@@ -194,7 +194,7 @@ def _fit_file(path, options, record):
             yield _error_row(src, i, "fit_error", f"{src}: {text}"), f"{src}: {text}", None
             continue
         result.file, result.index = src, i
-        problem = None if result.status in _FIT_RAN else f"{label(i)}: {result.message or result.status}"
+        problem = None if result.status in FIT_RAN else f"{label(i)}: {result.message or result.status}"
         yield result.to_record(), problem, result
 
 

@@ -1,4 +1,4 @@
-"""The joint fit of one record as a pure, fixed-shape function: ``fit`` runs it, ``batch`` vmaps it.
+"""The joint fit's steps as pure, fixed-shape functions: what ``analysis`` composes into one program.
 
 ``core(record, settings)`` goes from grouped periodogram products
 (``segments``) to a ``Summary`` of arrays:
@@ -7,30 +7,27 @@
 2. the fit's window of ``N_FIT`` bins from the first usable one, and on it the measured
    blocks, their masks and weights (``data``);
 3. starting values: each pair fitted alone with the exact R curve (from its Eq. 6 speed and
-   Eq. 26 radius; the Hertz program's own starts from each pair's Hertz curve), and two more
+   Eq. 26 radius; the Hertz disk's own starts from each pair's Hertz curve), and two more
    speed starts that take each axis in turn as the major one (a pair that hears only window
-   leakage mimics a fast slip along it); the texture knots from the shallow spectrum;
+   leakage mimics a fast slip along it); the texture knots from the shallow spectrum
+   (``prepare``; with ``both_windows`` for both windows at once);
 4. each start: the texture alone with the physics held, then every parameter; the lowest
    cost goes on (``solve.levenberg_marquardt``: one loop of fixed iterations, no
-   data-dependent control flow, so records vmap side by side). The Hertz window goes on
-   from the Gaussian program's ends of its five starts, the one of lowest Hertz cost
-   (``Start``, ``run.fit_one``): the Hertz program explores its own starts only when given
-   none (``fit.explored``: where the first solve is poor), as a Gaussian iteration costs a
-   third of a Hertz one, and the Hertz program holds no Gaussian model to compile;
+   data-dependent control flow, so records vmap side by side);
 5. the Laplace covariance and the delete-one-group jackknife of the data blocks pushed
    through the Gauss-Newton map: vx, vy and a each take their own variance ratio, the
    other parameters the three pooled, none below the reduced chi-square; where the
    misfit's spread across frequency (``_spread``) is over twice that (in a poor fit: larger), it sets
-   the ratio;
-6. an integer status (``STATUS``) and the reported values.
+   the ratio (``errors``);
+6. an integer status (``STATUS``) and the reported values (``finish``).
 
-What only a single record needs (profile-likelihood bounds, more iterations for a fit
-that has not settled, model selection) is layered on top by ``fit`` through this same
-program, started from a given point (``Start``).
+``analysis.analyse`` runs steps 1-3 once and then a schedule of solves (step 4) with every
+model choice; ``core`` is one window's single solve, from its own starts or a given ``Start``.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -55,7 +52,7 @@ from ..model.spline import log_phi_at
 
 __all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "start_at",
            "candidates", "scouting", "prepare",
-           "finish", "N_KNOTS", "ITERATIONS"]
+           "finish", "errors", "Errors", "fit_status", "N_KNOTS", "ITERATIONS"]
 
 #: integer status codes of ``Summary.status``
 STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
@@ -242,9 +239,12 @@ def _speed_radius(v_pair, a_pair, a_rel, have, known, velocity):
     return v0, jnp.clip(jnp.where(jnp.isfinite(a_rel).any(), a_pair[jnp.argmin(a_rel)], 2e-3), *_A_CLIP)
 
 
-def prepare(record: Record, settings: Settings, own_starts=True) -> Prepared:
+def prepare(record: Record, settings: Settings, own_starts=True, both_windows: bool = False):
     """Steps 1-3 of the module. own_starts: (traced) whether the program's own starts are wanted (not where a
-    start is given); the Hertz program then fits each pair with the Hertz curve for them."""
+    start is given); the Hertz program then fits each pair with the Hertz curve for them. both_windows: the
+    ``Prepared`` of each window, (Gaussian, Hertz), and a function that gives the Hertz disk's own starts
+    (each pair fitted with the disk's curve: call it only where they are wanted, they cost ten times the
+    rest); ``settings.hertz`` holds the table, or None for the Gaussian window's alone."""
     seg = record.seg
     spec = band_mod.spectra(seg)
     depths = record.depths
@@ -283,13 +283,35 @@ def prepare(record: Record, settings: Settings, own_starts=True) -> Prepared:
     data_kernel = _log_kernel(seg.kernel)
     pair_args = (om, _window(b.log_ratio, i0), _window(b.err, i0), band_w, depths, log_gains, b.speed0, b.a0,
                  data_kernel, settings.fit_gain)
+    _build = functools.partial(_build_prepared, b=b, spec=spec, om=om, i0=i0, band_w=band_w, depths=depths,
+                               log_gains=log_gains, known=known, settings=settings, meas=meas, w1=w1, w2=w2,
+                               d_omega=d_omega, data_kernel=data_kernel, resp_h=resp_h, resp_b=resp_b,
+                               offsets=offsets, mask_h=mask_h, mask_c22=mask_c22, mask_xy=mask_xy,
+                               mask_s11=mask_s11, dof=dof, k1=k1, k_xy=k_xy, d1=d1)
     v0, a0 = _speed_radius(*_pair_fits(*pair_args), known, record.velocity)
-    v_s, a_s = v0, a0                   # the starts' speeds and radius
-    if settings.hertz is not None:      # the pair fits give Gaussian radii: a Hertz disk of equal second moment
-        a0 = a0 * HERTZ_PER_GAUSS
-        # the program's own starts, wanted only where no start is given: each pair fitted with the Hertz curve
-        v_s, a_s = jax.lax.cond(own_starts, lambda: _speed_radius(*_pair_fits(*pair_args, settings.hertz), known,
-                                                                 record.velocity), lambda: (v0, a0))
+
+    def hertz_starts():     # each pair fitted with the Hertz curve
+        return _speed_radius(*_pair_fits(*pair_args, settings.hertz), known, record.velocity)
+
+    if both_windows:            # (the Gaussian window's twice in a program without the Hertz disk)
+        gauss = _build(False, v0, a0, v0, a0)
+        if settings.hertz is None:
+            return gauss, gauss, lambda: gauss.starts
+        a_h = a0 * HERTZ_PER_GAUSS
+        return gauss, _build(True, v0, a_h, v0, a_h), lambda: _build(True, v0, a_h, *hertz_starts()).starts
+    if settings.hertz is None:
+        return _build(False, v0, a0, v0, a0)
+    # the pair fits give Gaussian radii: a Hertz disk of equal second moment; the program's own starts,
+    # wanted only where no start is given
+    a_h = a0 * HERTZ_PER_GAUSS
+    return _build(True, v0, a_h, *jax.lax.cond(own_starts, hertz_starts, lambda: (v0, a_h)))
+
+
+def _build_prepared(hertz_window, v0, a0, v_s, a_s, *, b, spec, om, i0, band_w, depths, log_gains, known, settings,
+                    meas, w1, w2, d_omega, data_kernel, resp_h, resp_b, offsets, mask_h, mask_c22, mask_xy, mask_s11,
+                    dof, k1, k_xy, d1) -> Prepared:
+    """The rest of ``prepare`` for one window: the starts' texture, the data and the starts (v0, a0: the
+    prior's centre; v_s, a_s: the starts' speeds and radius)."""
     main = jnp.argmax(jnp.where(b.n_band > 0, v0, -jnp.inf))
     k_lo = 0.5 * om[0] / jnp.max(v0)
     k_hi = 25.0 / (2.0 * d1)
@@ -331,7 +353,7 @@ def prepare(record: Record, settings: Settings, own_starts=True) -> Prepared:
     prior_inv_sd = jnp.where(free | aniso, prior_inv_sd, 0.0)
     data = JointData(
         meas=meas, omega=om,
-        grid_abs=jnp.abs(d_omega * (i0 + (jnp.asarray(grid_offsets()) if settings.hertz is None else offsets))),
+        grid_abs=jnp.abs(d_omega * (i0 + (offsets if hertz_window else jnp.asarray(grid_offsets())))),
         log_kernel=data_kernel,
         white_half=jnp.log(jnp.abs(resp_h) ** 2), white_bin=jnp.log(jnp.abs(resp_b) ** 2),
         xy_white_half=jnp.conj(resp_h[0]) * resp_h[1], xy_white_bin=jnp.conj(resp_b[0]) * resp_b[1],
@@ -562,16 +584,36 @@ def texture_sections(theta, cov, jac, model: ModelSpectra, data: JointData):
     return jnp.stack([k, logp, jnp.sqrt(jnp.clip(var, 0.0, None) + 1.0 / jnp.square(data.s11_weight))])
 
 
-def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra,
-           hertz=None) -> Summary:
-    """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals, their
-    Jacobian and the model's spectra there."""
+class Errors(NamedTuple):
+    """Step 5 and the status at a solution (``errors``): the fields of ``Summary`` of the same names."""
+
+    cov: jax.Array
+    sd: jax.Array
+    scales: jax.Array
+    pooled: jax.Array
+    chi2: jax.Array
+    redchi: jax.Array
+    n_data: jax.Array
+    cond: jax.Array
+    decrement: jax.Array
+    step_sigma: jax.Array
+    converged: jax.Array
+    settled: jax.Array
+    status: jax.Array
+    n_bins: jax.Array
+    jackknife: jax.Array
+    spread: jax.Array
+
+
+def errors(record: Record, data: JointData, free, i0, theta, r, jac, hertz=None) -> Errors:
+    """Step 5 of the module and the status at the solution ``theta`` (fitted over ``free``), with its residuals
+    and their Jacobian there; i0: the window's first bin."""
     cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     settled = settled_physics(step_sigma, free)
     converged = finite & ((decrement < DECREMENT_TOL) | settled)
     unit = _unit_inverse(jac, free)
-    scales, pooled, ran = _jackknife(record, theta, jac, free, unit, data, b.i0, redchi, hertz)
+    scales, pooled, ran = _jackknife(record, theta, jac, free, unit, data, i0, redchi, hertz)
     fallback = jnp.maximum(redchi, 1.0) * jnp.maximum(record.seg.bin_factor, 1.0)
     scales = jnp.where(ran, scales, fallback)
     pooled = jnp.where(ran, pooled, fallback)
@@ -590,9 +632,22 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
     cov = cov * jnp.sqrt(jnp.outer(scales, scales)) / jnp.where(redchi > 0, redchi, 1.0)
     sd = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0, None))
     n_bins = jnp.sum(data.mask_s11[0]) + jnp.sum(data.mask_s11[1] | data.mask_xy[0])
-    status = jnp.where(n_bins < MIN_BINS, 1, jnp.where(~finite, 4, jnp.where(~converged, 2,
-                       jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
-    return Summary(theta, cov, sd, free, scales, pooled, chi2, redchi, n_data, cond, decrement, step_sigma,
-                   converged, settled & ~(decrement < DECREMENT_TOL), status, n_bins, b, ran,
-                   model, jac, texture_sections(theta, cov, jac, model, data), data, spread)
+    status = fit_status(n_bins, finite, converged, redchi)
+    return Errors(cov, sd, scales, pooled, chi2, redchi, n_data, cond, decrement, step_sigma, converged,
+                  settled & ~(decrement < DECREMENT_TOL), status, n_bins, ran, spread)
 
+
+def fit_status(n_bins, finite, converged, redchi):
+    """The integer status (``STATUS``) of a solution."""
+    return jnp.where(n_bins < MIN_BINS, 1, jnp.where(~finite, 4, jnp.where(~converged, 2,
+                     jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
+
+
+def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra,
+           hertz=None) -> Summary:
+    """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals, their
+    Jacobian and the model's spectra there."""
+    e = errors(record, data, free, b.i0, theta, r, jac, hertz)
+    return Summary(theta, e.cov, e.sd, free, e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
+                   e.step_sigma, e.converged, e.settled, e.status, e.n_bins, b, e.jackknife,
+                   model, jac, texture_sections(theta, e.cov, jac, model, data), data, e.spread)

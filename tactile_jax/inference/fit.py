@@ -1,16 +1,15 @@
 """Joint estimation of slip velocity, contact radius, gains and texture spectrum, with error bars.
 
 ``fit_recording`` (probe signals) and ``fit_spectra`` (recorded spectra) run the
-compiled joint pipeline of ``inference`` on one record: grouped periodograms on a
+analysis program (``inference.analysis``) on one record: grouped periodograms on a
 fixed grid (``spectral.segments``), the usable band and closed-form starts, the 2-D
 joint model of both pairs and their cross-pair chain fitted by fixed-iteration
-Levenberg-Marquardt from several starts, Laplace errors scaled by the
-delete-one-group jackknife. ``batch`` runs the same program on chunks. On top,
-for one record: more iterations where the fit has not settled, profile-likelihood
-bounds for what the data cannot determine (a speed consistent with 0, a contact
-window too weak to measure, a minor speed component), model selection, texture
-cross-sections (Eq. 18-19) and the problem emcee samples. ``result_from_summary``
-turns the pipeline's arrays into a ``FitResult``; fit and batch rows both come from it.
+Levenberg-Marquardt, every model choice (window, texture, slip direction) made
+inside the program, Laplace errors scaled by the delete-one-group jackknife.
+``batch`` runs the same program on chunks, and both turn its arrays into a row with
+``result_of``. On top, for one record only: profile-likelihood bounds for a minor
+speed component (``uncertainty.profile``), ``model="auto"``/"slip", texture
+cross-sections (Eq. 18-19) and the problem emcee samples.
 Nothing here raises on a fit that fails: the result's ``status`` and ``message``
 say why (bad input raises ``TactileInputError``; ``batch`` turns it into a row).
 """
@@ -25,28 +24,24 @@ import numpy as np
 from ..errors import TactileInputError
 from ..io.recording import Recording, validate_recording
 from ..model.sensor import PAPER_SENSOR
-from ..status import FIT_CODES, Status
+from ..status import Status
 from ..uncertainty.profile import add_profiles
 from . import run
 from . import select as model_select
-from .core import Record, Settings, Summary, no_start
+from .analysis import WINDOWS, Analysis, summary_of
+from .core import Record, Settings, Summary
+from .describe import result_from_analysis
 from .forward import PARAMS
-from .options import FitOptions, known_gains, options_from_file, settings_of
+from .options import FitOptions, analysis_settings, choices_of, known_gains, options_from_file, settings_of
 from .pair_fit import fit_pair
 from .problem import FitProblem
 from .residuals import residuals as joint_residuals
-from .result import A_BOUNDS, V_BOUNDS, FitResult, result_from_summary, set_contact_depth, texture_sections
+from .result import A_BOUNDS, V_BOUNDS, FitResult, set_contact_depth, texture_sections
 
-#: ``Summary.status`` of a fit that has not settled
-_UNSETTLED = FIT_CODES.index(Status.NOT_CONVERGED)
-#: statuses of a first solve that may sit in a wrong basin
-_POOR = (_UNSETTLED, FIT_CODES.index(Status.POOR_FIT))
 
-__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "refine", "Refined", "settle",
-           "with_line_model", "result_from_lines", "NO_XY_MESSAGE"]
+__all__ = ["fit_recording", "fit_spectra", "fit_record", "record_of", "result_of", "with_line_model",
+           "result_from_lines", "NO_XY_MESSAGE"]
 
-#: more solves (``core.ITERATIONS[2]`` iterations each) for a fit that has not settled
-_MORE_SOLVES = 3
 #: a smooth fit this far off (reduced chi-square) says nothing: a line model that found lines replaces it
 _GROSS_REDCHI = 100.0
 _I = {name: i for i, name in enumerate(PARAMS)}
@@ -278,15 +273,16 @@ def fit_spectra(data, options: FitOptions = FitOptions()) -> FitResult:
 
 def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_radius=None,
                has_xy: bool = True) -> FitResult:
-    """The joint pipeline on one ``inference.core.Record`` with what only a single record needs layered on
-    top (see the module). Never raises for a fit that fails: see ``status``."""
+    """The analysis program (``inference.analysis``) on one ``inference.core.Record``, with what only a single
+    record needs layered on top (see the module). Never raises for a fit that fails: see ``status``."""
     try:
         options = model_select.options_for(options)
         if options.cross_pairs not in (None, 0, 1, 2):
             return FitResult(status="unsupported", message=f"cross_pairs must be None, 0, 1 or 2, not "
                                                            f"{options.cross_pairs!r}")
-        settings = settings_of(options, has_xy=has_xy)
-        return _layered(rec, settings, run.fit_one(rec, settings), options, curvature_radius)
+        settings = analysis_settings(options, has_xy=has_xy)
+        a = run.analyse_one(rec, settings, choices_of(options))
+        return _layered(rec, settings, a, options, curvature_radius)
     except TactileInputError:
         raise
     except Exception as err:  # a bug or a numerical corner must not sink a batch: report it as data
@@ -298,200 +294,73 @@ def fit_record(rec: Record, options: FitOptions = FitOptions(), *, curvature_rad
 
 
 class _Refitter(NamedTuple):
-    """Refits of one record through the pipeline's program (``inference.run.refit``)."""
+    """Refits of one record through the analysis program, every choice held (``inference.run.refit_analysis``)."""
 
     rec: Record
     settings: Settings
+    window: str
 
     def __call__(self, theta, free) -> Summary:
-        return run.refit(self.rec, self.settings, theta, free)
+        return run.refit_analysis(self.rec, self.settings, theta, free, self.window)
 
 
-class Refined(NamedTuple):
-    """``refine``'s outcome: the summary and the settings of the models chosen (their window, hence
-    program), the window, texture and slip-direction models with their margins and what to say of them (``notes``,
-    for the message), warnings (more solves), where the data cannot tell the windows apart the other
-    window's summary and the kept window's weight (``select.average_windows``; else None and 1), and
-    where a minor speed is held at 0 the fit with it free (``oblique``: its profile bounds the speed);
-    where the texture models are close the other texture model's summary and the kept one's weight
-    (``select.average_models``; else None and 1)."""
+class _Oblique(NamedTuple):
+    """The fit with both speeds free where the slip direction holds one (its profile bounds the held one)."""
 
-    summary: Summary
-    settings: Settings
-    window: str
-    window_margin: float | None
-    texture: str
-    texture_margin: float | None
-    notes: tuple
-    warnings: tuple
-    other: Summary | None = None
-    weight: float = 1.0
-    direction: str = "oblique"
-    direction_margin: float | None = None
-    oblique: Summary | None = None
-    texture_other: Summary | None = None
-    texture_weight: float = 1.0
+    theta: np.ndarray
+    free: np.ndarray
+    scales: np.ndarray
+    chi2: float
 
 
-def refine(rec: Record, settings: Settings, s: Summary, options: FitOptions) -> Refined:
-    """What ``fit`` and ``batch`` both do after the pipeline's first solve ``s`` under ``settings``: more
-    solves where the fit has not settled; the contact window (``select.choose_window``: the Hertz fit
-    against a Gaussian refit from it) unless ``options.window`` forces one; then the texture model
-    (``select.choose_texture``) unless ``options.texture`` forces one; then the slip direction
-    (``select.choose_direction``: a minor speed the data do not need is held at 0) unless
-    ``options.direction`` gives it. Every refit runs the
-    program of its window from a given start."""
-    warnings, notes = [], []
-    s, more = settle(rec, settings, s)
-    if more:
-        warnings.append(f"the fit took {more} more solves of {run.ITERATIONS[2]} iterations to settle"
-                        if int(s.status) != _UNSETTLED else
-                        f"{more} more solves of {run.ITERATIONS[2]} iterations did not settle the fit")
-    window = settings.window
-    window_margin, other, weight = None, None, 1.0
-    bin_factor = float(rec.seg.bin_factor)
-    if options.window == "hertz":
-        s, note = explored(rec, settings, s)
-        notes.append(note)
-    if options.window is None and settings.hertz is not None:
-        gauss = settings._replace(hertz=None)
-
-        def choose(s_h):
-            return model_select.choose_window(s_h, _settled_refit(rec, gauss), bin_factor=bin_factor)
-
-        chosen = choose(s)
-        if int(chosen.summary.status) in _POOR:
-            s, note = explored(rec, settings, s)
-            notes.append(note)
-            if note:
-                chosen = choose(s)
-        s, choice, window_margin, note, other, weight = chosen
-        if choice == "gaussian":
-            settings, window = gauss, "gaussian"
-            warnings = []                       # the Hertz fit's settling is not this result's
-            if int(s.status) == _UNSETTLED:
-                # the refit from the Hertz optimum did not settle: the Gaussian window's own starts
-                fresh = settle(rec, gauss, run.fit_one(rec, gauss))[0]
-                if int(fresh.status) != _UNSETTLED or float(fresh.chi2) < float(s.chi2):
-                    s = fresh
-        notes.append(note)
-    texture, texture_margin = model_select.texture_name(s.free), None
-    texture_other, texture_weight = None, 1.0
-    if options.texture is None:
-        s, texture, texture_margin, note, texture_other, texture_weight = model_select.choose_texture(
-            s, _settled_refit(rec, settings), bin_factor=bin_factor)
-        notes.append(note)
-    oblique = s
-    s, direction, direction_margin, note = model_select.choose_direction(s, _settled_refit(rec, settings),
-                                                                         options.direction)
-    notes.append(note)
-    return Refined(s, settings, window, window_margin, texture, texture_margin, tuple(n for n in notes if n),
-                   tuple(warnings), other, weight, direction, direction_margin, None if s is oblique else oblique,
-                   texture_other, texture_weight)
+def result_of(a: Analysis, rec: Record, options: FitOptions, *, curvature_radius=None, file=None, index: int = 0,
+              extras=None, summary: Summary | None = None) -> FitResult:
+    """The row of one record's ``Analysis``: what ``fit`` reports before its extras, and ``batch`` writes."""
+    s = summary_of(a) if summary is None else summary
+    return result_from_analysis(a, velocity=options.velocity, curvature_radius=curvature_radius,
+                                model=model_select.model_name(s.free, options.velocity is not None), segments=rec.seg,
+                                file=file, index=index, extras=extras, summary=summary)
 
 
-#: chi-square the Hertz program's own starts must gain over its first solve to replace it
-EXPLORED_GAIN = 0.1
-
-
-def explored(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, str]:
-    """Where the Hertz program's first solve ``s`` (from the Gaussian program's scouting) is poor or unsettled,
-    the Hertz program's own starts (each pair fitted with the Hertz curve): the fit of lower chi-square, and a
-    note where it is the new one. A large disk at a slow slip bends the ratio beyond what the Gaussian
-    window follows, and the scouting's starts then all lie in wrong basins."""
-    if settings.hertz is None or int(s.status) not in _POOR:
-        return s, ""
-    alt = settle(rec, settings, run.fit_one(rec, settings, no_start()))[0]
-    # a real improvement: the same minimum reached again differs from the first by rounding only
-    if not float(alt.chi2) < float(s.chi2) - max(EXPLORED_GAIN, 1e-9 * abs(float(s.chi2))):
-        return s, ""
-    return alt, (f"the Hertz window's own starts found a better fit than the Gaussian scouting's (chi-square "
-                 f"{float(alt.chi2):.1f} against {float(s.chi2):.1f})")
-
-
-def _settled_refit(rec: Record, settings: Settings):
-    """refit(theta, free) -> the program of ``settings`` from ``theta``, with more solves where it has not settled."""
-    return lambda theta, free: settle(rec, settings, run.refit(rec, settings, theta, free))[0]
-
-
-def averaged(res: FitResult, refined: Refined, *, velocity=None, curvature_radius=None) -> FitResult:
-    """``res`` (of ``refined``'s summary) with vx, vy and a averaged over both windows where the data cannot
-    tell them apart (``select.average_windows``), then over both texture models where they are close
-    (``select.average_models``); ``fit`` and ``batch`` both call this."""
-    if res.status in (Status.NO_BAND, Status.FAILED):
-        return res
-    if refined.other is not None:
-        other = result_from_summary(refined.other, velocity=velocity, curvature_radius=curvature_radius)
-        model_select.average_windows(res, other, refined.weight, refined.window)
-    if refined.texture_other is not None:
-        other = result_from_summary(refined.texture_other, velocity=velocity, curvature_radius=curvature_radius)
-        model_select.average_models(res, other, refined.texture_weight)
-    return res
-
-
-def _layered(rec: Record, settings: Settings, s: Summary, options: FitOptions, curvature_radius) -> FitResult:
-    refined = refine(rec, settings, s, options)
-    s = refined.summary
-    refit = _Refitter(rec, refined.settings)
-    warnings = list(refined.warnings)
-    chosen, window_weak, note = _select(refit, s, options)
+def _layered(rec: Record, settings: Settings, a: Analysis, options: FitOptions, curvature_radius) -> FitResult:
+    window = WINDOWS[int(a.window)]
+    refit = _Refitter(rec, settings, window)
+    s = summary_of(a)
+    chosen, note = _select(refit, s, options)
     margin = None
     if chosen is not None:
         _, s, margin = chosen
-    model = model_select.model_name(s.free, options.velocity is not None)
-    res = result_from_summary(s, velocity=options.velocity, curvature_radius=curvature_radius, model=model,
-                              window_weak=window_weak, segments=refit.rec.seg)
+    o_free = np.asarray(a.oblique_free, bool)
+    oblique = (_Oblique(np.asarray(a.oblique_theta), o_free, np.asarray(a.oblique_scales), float(a.oblique_chi2))
+               if (o_free != np.asarray(s.free, bool)).any() else None)
+
+    def extras(res, s):
+        add_profiles(res, s, refit, profile_minor=options.profile_minor, oblique=oblique)
+
+    res = result_of(a, rec, options, curvature_radius=curvature_radius, extras=extras,
+                    summary=None if chosen is None else s)
     res.model_margin = margin
-    res.window, res.window_margin = refined.window, refined.window_margin
-    res.texture, res.texture_margin = model_select.texture_name(s.free), refined.texture_margin
-    res.direction, res.direction_margin = refined.direction, refined.direction_margin
-    res.message = "; ".join(m for m in (res.message, *refined.notes) if m)
-    add_profiles(res, s, refit, profile_minor=options.profile_minor, oblique=refined.oblique)
-    averaged(res, refined, velocity=options.velocity, curvature_radius=curvature_radius)
-    if note and note.startswith("model "):
+    if note:
         res.message = "; ".join(m for m in (note, res.message) if m)
-    elif note:
-        warnings.append(note)
-    res.warnings.extend(warnings)
     try:
         res.texture_x, res.texture_y = texture_sections(s)
     except Exception as err:  # pragma: no cover - reporting extra, never fatal
         res.warnings.append(f"texture cross-sections not computed: {err}")
-    res.problem = _problem(s, res, curvature_radius, refined.settings.hertz)
+    res.problem = _problem(s, res, curvature_radius, settings.hertz if window == "hertz" else None)
     res.data = s.data
     res.summary = s
     model_select.annotate(res)
     return res
 
 
-def settle(rec: Record, settings: Settings, s: Summary) -> tuple[Summary, int]:
-    """More solves of the pipeline's program from where a fit stopped unsettled (``fit`` and ``batch``):
-    the last summary and how many solves ran (0 where it had settled)."""
-    if int(s.status) != _UNSETTLED:
-        return s, 0
-    return _continue(_Refitter(rec, settings), s)
-
-
-def _continue(refit: _Refitter, s: Summary):
-    """More solves from where a fit stopped unsettled; the last summary and how many solves ran."""
-    for k in range(1, _MORE_SOLVES + 1):
-        s = refit(s.theta, s.free)
-        if int(s.status) != _UNSETTLED:
-            return s, k
-    return s, _MORE_SOLVES
-
-
 def _select(refit: _Refitter, s: Summary, options: FitOptions):
-    """``options.model``: ((name, summary, margin) or None, window_weak, note)."""
-    free = np.asarray(s.free, bool)
+    """``options.model`` "slip" or "auto": ((name, summary, margin) or None, note)."""
     if options.model in ("slip", "auto"):
-        sel = model_select.select(s, free, lambda th, fr: (lambda f: (f, float(f.chi2)))(refit(th, fr)), options,
+        sel = model_select.select(s, np.asarray(s.free, bool),
+                                  lambda th, fr: (lambda f: (f, float(f.chi2)))(refit(th, fr)), options,
                                   bin_factor=float(refit.rec.seg.bin_factor))
-        return (sel.name, s if sel.fit is None else sel.fit, sel.margin), False, sel.note
-    if options.model is None:
-        needed, note = model_select.window_needed(s, free, lambda th, fr: float(refit(th, fr).chi2))
-        return None, not needed, note
-    return None, False, ""
+        return (sel.name, s if sel.fit is None else sel.fit, sel.margin), sel.note
+    return None, ""
 
 
 def _problem(s: Summary, res: FitResult, curvature_radius, hertz=None) -> FitProblem:

@@ -8,9 +8,11 @@ from typing import Any
 import numpy as np
 
 from ..errors import TactileInputError
+from .analysis import DIRECTIONS
 from .core import Settings
 
-__all__ = ["FitOptions", "WINDOWS", "settings_of", "options_from_file", "known_gains"]
+__all__ = ["FitOptions", "WINDOWS", "settings_of", "analysis_settings", "choices_of", "options_from_file",
+           "known_gains"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,8 +83,6 @@ class FitOptions:
 
 
 WINDOWS = ("hertz", "gaussian")
-#: the slip directions (``select.choose_direction``)
-DIRECTIONS = ("oblique", "along x", "along y")
 
 
 def settings_of(options: FitOptions, *, has_xy: bool = True, window: str | None = None) -> Settings:
@@ -108,6 +108,28 @@ def settings_of(options: FitOptions, *, has_xy: bool = True, window: str | None 
                     noise_floor=bool(options.noise_floor), fit_gain=bool(options.fit_gain),
                     conditioned=bool(options.conditioned), chain=chain if has_xy else 0,
                     directional=options.texture == "directional", hertz=hertz)
+
+
+def analysis_settings(options: FitOptions, *, has_xy: bool = True) -> Settings:
+    """The analysis program's ``Settings`` for ``options``: both windows' (the Hertz table as data), or the
+    Gaussian window's alone where ``options.window`` gives it (a smaller program); the window given, if any,
+    goes in ``choices_of`` too."""
+    return settings_of(options, has_xy=has_xy, window="gaussian" if options.window == "gaussian" else "hertz")
+
+
+def choices_of(options: FitOptions):
+    """The analysis program's ``analysis.Choices`` for ``options``: what the user fixed, as data."""
+    from .analysis import Choices, TEXTURES, WINDOWS as WINS
+
+    settings_of(options)                        # checks window and direction with their one-line errors
+    texture = options.texture
+    if texture not in (None,) + TEXTURES:
+        raise TactileInputError(f"texture must be one of {', '.join(TEXTURES)} or None, got {texture!r}",
+                                code="bad_setting")
+    return Choices(window=0 if options.window is None else 1 + WINS.index(options.window),
+                   texture=0 if texture is None else 1 + TEXTURES.index(texture),
+                   direction=0 if options.direction is None else 1 + DIRECTIONS.index(options.direction),
+                   test_window=options.model is None, refit=False)
 
 
 def options_from_file(options: FitOptions, rec) -> FitOptions:

@@ -51,7 +51,7 @@ class Estimate:
     profile-likelihood interval, where the Laplace error does not describe the quantity (a minor
     speed component). lower / upper: a one-sided 95 % bound (a contact window too weak to measure,
     a speed consistent with 0). fixed: held at a value given from outside (a known velocity or gain), or
-    a minor speed held at 0 by the slip direction (``select.choose_direction``; ``upper`` bounds it).
+    a minor speed held at 0 by the slip direction (``analysis``; ``upper`` bounds it).
     """
 
     value: float | None = None

@@ -1,32 +1,37 @@
-"""Running the joint pipeline: records from signals or spectra, the compiled programs, one or many at a time.
+"""Running the analysis: records from signals or spectra, the compiled programs, one or many at a time.
 
 Every program here is compiled once per process (and kept in the persistent
 cache where the caller enables one), whatever the recordings' lengths, segment
-lengths or band widths: their inputs have fixed shapes (``segments``). The
-single-record path and a batch call the same ``core``: ``fit`` jit-compiles it
-for one record, ``batch`` runs that program record after record on a CPU and a
-vmapped one over a chunk on an accelerator; what ``fit`` layers on
-top (profiles, model selection, more iterations) runs through the same program
-from a given start (``refit``).
+lengths or band widths: their inputs have fixed shapes (``segments``). ``fit``
+and ``batch`` run one program, ``analysis.analyse``: ``analyse_one`` on one
+record, ``analyse_many`` on a chunk (vmapped on an accelerator, record after
+record on a CPU, where ``batch`` spreads the chunks over processes);
+``refit_analysis`` runs it from a given point with every choice held, for
+``fit``'s extras (profiles, ``model="auto"``). ``fit_one`` and ``fit_many`` run
+one window's single solve (``core.core``), for studies of that step alone.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..spectral import band as band_mod
-from .core import (HERTZ_PER_GAUSS, ITERATIONS as ITERATIONS, INDEX, Located, Record, Settings, Start, Summary,
+from .analysis import Analysis, Choices, Stages, summary_of
+from .analysis import analyse as _analyse
+from .core import (HERTZ_PER_GAUSS, ITERATIONS as ITERATIONS, INDEX, Errors, Located, Record, Settings, Start, Summary,
                    candidates, core, no_start, scouting, start_at)
 from .data import JointData, Measured
 from .forward import ModelSpectra
 from ..spectral.segments import Segments, from_spectra, segments
 
-__all__ = ["record", "record_from_spectra", "fit_one", "fit_many", "refit", "resolution_want"]
+__all__ = ["record", "record_from_spectra", "analyse_one", "analyse_many", "refit_analysis", "fit_one", "fit_many",
+           "refit", "resolution_want"]
 
 #: the log ratio may fall by at most this much across one bin (resolution of slow slips)
 MAX_LOG_STEP_PER_BIN = 0.15
@@ -47,14 +52,20 @@ def _core_many(recs: Record, settings: Settings, starts: Start) -> Summary:
     return jax.vmap(core, in_axes=(0, None, 0))(recs, settings, starts)
 
 
+def _analyse_many(recs: Record, settings: Settings, choices: Choices, starts: Start) -> Analysis:
+    return jax.vmap(_analyse, in_axes=(0, None, None, 0))(recs, settings, choices, starts)
+
+
 @functools.cache
 def _programs():
     """The compiled programs, built on first use (one set per process)."""
-    return {"locate": jax.jit(_locate), "core": _single_core(), "core_many": jax.jit(_core_many)}
+    return {"locate": jax.jit(_locate), "core": _single_core(), "core_many": jax.jit(_core_many),
+            "analyse": _exported(_analyse, "analyse"), "analyse_many": jax.jit(_analyse_many)}
 
 
-# the pytree types of the single-record program's arguments and results, for jax.export's serialisation
-_TYPES = (Segments, Record, Settings, Start, Summary, Located, ModelSpectra, JointData, Measured)
+# the pytree types of the programs' arguments and results, for jax.export's serialisation
+_TYPES = (Segments, Record, Settings, Start, Summary, Located, ModelSpectra, JointData, Measured, Choices, Analysis,
+          Stages, Errors)
 
 
 def _source_key() -> str:
@@ -110,6 +121,44 @@ def _single_core():
         return call
     except ImportError:                 # jax.export's serialisation needs flatbuffers
         return jitted
+
+
+def _exported(fn, name: str):
+    """``fn`` jit-compiled; where a persistent compilation cache is set (the CLI sets one), its traced program is
+    also kept there with ``jax.export``, so that a later process deserialises it instead of tracing ``fn`` again
+    and finds its compiled form in the cache."""
+    from pathlib import Path
+
+    jitted = jax.jit(fn)
+    cache = jax.config.jax_compilation_cache_dir
+    if not cache:
+        return jitted
+    try:
+        from jax import export
+    except ImportError:                 # pragma: no cover - jax.export's serialisation needs flatbuffers
+        return jitted
+    for t in _TYPES:
+        try:
+            export.register_namedtuple_serialization(t, serialized_name=f"tactile_jax.{t.__name__}")
+        except ValueError:              # registered already
+            pass
+    state = {}
+
+    def call(*args):
+        if "call" not in state:
+            path = Path(cache).parent / "export" / f"{name}-{_source_key()}.bin"
+            if path.exists():
+                exp = export.deserialize(bytearray(path.read_bytes()))
+            else:
+                exp = export.export(jitted)(*args)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(exp.serialize())
+                tmp.replace(path)
+            state["call"] = jax.jit(exp.call)
+        return state["call"](*args)
+
+    return call
 
 
 def _as_jnp(tree):
@@ -241,3 +290,45 @@ def fit_many(recs: list[Record], settings: Settings, size: int | None = None, *,
 def refit(rec: Record, settings: Settings, theta, free) -> Summary:
     """The same program from ``theta`` over ``free`` (what ``fit`` layers its extras on)."""
     return fit_one(rec, settings, start_at(theta, free))
+
+
+def _unstack(tree, n: int) -> list:
+    return [jax.tree.map(lambda x, i=i: x[i], tree) for i in range(n)]
+
+
+def analyse_one(rec: Record, settings: Settings, choices: Choices = Choices(), start: Start | None = None
+                ) -> Analysis:
+    """``analysis.analyse`` on one record (numpy in, an ``Analysis`` of numpy arrays out). settings: with the
+    Hertz table (``options.analysis_settings``)."""
+    out = _programs()["analyse"](_as_jnp(rec), _as_jnp(settings), _as_jnp(choices),
+                                 _as_jnp(no_start() if start is None else start))
+    return jax.tree.map(np.asarray, out)
+
+
+def analyse_many(recs: list[Record], settings: Settings, choices: Choices = Choices(), size: int | None = None, *,
+                 vmapped: bool | None = None) -> list[Analysis]:
+    """``analysis.analyse`` on each record: one ``Analysis`` each (numpy).
+
+    vmapped: the chunk side by side in one program (``jax.vmap``, padded to ``size`` with copies of the first);
+    None: on an accelerator only. On a CPU the single-record program (the one ``fit`` runs) one record after
+    another is as fast per core; ``batch`` uses the other cores with processes."""
+    if vmapped is None:
+        vmapped = jax.default_backend() != "cpu"
+    n = len(recs)
+    if not n:
+        return []
+    if not vmapped:
+        return [analyse_one(r, settings, choices) for r in recs]
+    size = max(size or n, n)
+    stacked = _as_jnp(_stack(recs + [recs[0]] * (size - n)))
+    out = _programs()["analyse_many"](stacked, _as_jnp(settings), _as_jnp(choices),
+                                       _as_jnp(_stack([no_start()] * size)))
+    return _unstack(jax.tree.map(np.asarray, out), n)
+
+
+def refit_analysis(rec: Record, settings: Settings, theta, free, window: str) -> Summary:
+    """The analysis program from ``theta`` over ``free`` under ``window`` with every choice held: the kept fit's
+    ``Summary`` (what ``fit``'s profiles and model selection refit)."""
+    a = analyse_one(rec, settings, Choices(window=1 + ("gaussian", "hertz").index(window), texture=1, direction=1,
+                                           test_window=False, refit=True), start_at(theta, free))
+    return summary_of(a)

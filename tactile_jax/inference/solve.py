@@ -37,7 +37,7 @@ __all__ = ["levenberg_marquardt"]
 
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
-                        stop_tol=None):
+                        stop_tol=None, count: bool = False, soft_after=None, soft_tol=None):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
@@ -47,7 +47,10 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     ``ends``, also where each start ended (S, P) (non-finite ones as they are; a start not explored as it
     was given). stop_tol: the final iterations end early once the Gauss-Newton decrement still to go (chi2
     units, ``lsq.fit_statistics``'s) is below it (None: they all run); under ``vmap`` each record keeps the
-    point where it stopped.
+    point where it stopped. soft_after, soft_tol: after this many final iterations (traced), a decrement
+    below ``soft_tol`` ends them too (a fit that has converged, though not to ``stop_tol``). A negative
+    ``n_final`` with ``skip_starts`` runs nothing (the starts' first row is returned, with zero residuals).
+    count: also return how many iterations ran (evaluations of the residuals and their Jacobian).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
@@ -91,8 +94,12 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         take = ok | fresh
         new = jax.tree.map(lambda a, b: jnp.where(take, a, b), (trial, r_t, j_t, aux_t, cost_t),
                            (theta, r, jac, aux, cost))
-        done = False if stop_tol is None else (k >= explore) & (gauss_newton_decrement(new[1], new[2], free)
-                                                                < stop_tol)
+        done = False
+        if stop_tol is not None:
+            dec = gauss_newton_decrement(new[1], new[2], free)
+            done = (k >= explore) & (dec < stop_tol)
+            if soft_after is not None:
+                done = done | (k >= explore + soft_after) & (dec < soft_tol)
         return (*new, lam, nu), best, last, jnp.asarray(done)
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
@@ -109,6 +116,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         *carry, done = body(i, *carry)
         return i + 1, done, *carry
 
-    _, _, (theta, r, jac, aux, _, _, _), _, last = jax.lax.while_loop(
+    n_iter, _, (theta, r, jac, aux, _, _, _), _, last = jax.lax.while_loop(
         lambda loop: (loop[0] < n_total + 1) & ~loop[1], step, (0, jnp.asarray(False), state, best, starts))
-    return (theta, r, jac, aux, last) if ends else (theta, r, jac, aux)
+    out = (theta, r, jac, aux) + ((last,) if ends else ())
+    return out + (n_iter,) if count else out

@@ -36,7 +36,7 @@ def _fmt_speed(v):
 def add_profiles(res: FitResult, s, refit: Callable, *, profile_minor: bool = True, oblique=None) -> None:
     """Bounds and intervals of ``res`` (see the module) from its summary ``s``; notes go to its message.
 
-    oblique: where the slip direction holds a minor speed at 0 (``select.choose_direction``), the fit with it free;
+    oblique: where the slip direction holds a minor speed at 0 (``analysis``), the fit with it free;
     the held speed's 95 % upper bound is its profile from there."""
     if res.status in ("no_band", "failed"):
         return

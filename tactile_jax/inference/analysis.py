@@ -1,0 +1,571 @@
+"""The whole analysis of one record as one pure, fixed-shape program: ``analyse``.
+
+Every model choice a record needs is made inside the program, as data. The
+program runs a fixed schedule of solves (``STAGES``), each a
+Levenberg-Marquardt solve (``solve.levenberg_marquardt``) of the joint model
+under either contact window, started from where the earlier solves ended. A
+solve the record does not need is switched off (no iteration runs) and every
+choice is a ``jnp.where`` on the solves' statistics:
+
+====  ==========================================================================
+G0    the Gaussian window's starts, each explored (``core``'s step 4): the
+      scouting of the Hertz disk's starts; with the window given as Gaussian,
+      the Gaussian fit itself
+H1    the Hertz disk from the one of G0's ends of lowest Hertz cost
+GW1   the Gaussian window refitted from H1 (its radius scaled to the same second
+      moment): the window choice compares the two by chi-square
+HX    the Hertz disk's own starts (each pair fitted with the disk's curve),
+      where the chosen fit and H1 are poor or unsettled: a large disk at a
+      slow slip bends the ratio beyond what the Gaussian window follows
+GW2   the Gaussian window refitted from HX, where HX improved on H1
+GF    the Gaussian window's own starts, where it was chosen but its refit
+      did not settle
+T2    the texture's lobe freed to its second harmonic (detection)
+T4    all four harmonics, where the lobe is decisive (its shape)
+DA    the minor speed held at 0 (slip along an axis)
+WN    the contact radius held negligible (is the window needed?)
+====  ==========================================================================
+
+The windows, texture models and slip directions are chosen, or averaged
+where the data barely tell them apart, by the rules of ``_compare_windows``,
+``_texture_fit`` and ``_direction_fit``; the choices, margins and weights are
+arrays of the ``Analysis``, which ``inference.describe`` turns into words.
+Under ``jax.jit`` on one record a solve switched off costs nothing;
+under ``jax.vmap`` every record runs the schedule side by side, and a chunk
+iterates until its slowest record stops. The solves share one loop body (a
+``lax.scan`` over the stages), so the program compiles the joint model and its
+Jacobian once for each window.
+
+A refit (``Choices.refit``: profiles, ``model="auto"``) runs the same program
+from a given ``Start`` with every choice held: G0 goes on from the start under
+the given window, the other stages are off.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .core import (HERTZ_PER_GAUSS, ITERATIONS, N_STARTS, OWN_STARTS, STOP_TOL, DECREMENT_TOL, Errors, Located,
+                   Record, Settings, Start, Summary, errors, fit_status, no_start, prepare, settled_physics,
+                   statistics, texture_sections)
+from .data import JointData
+from .forward import ANISO, INDEX, ModelSpectra
+from .residuals import residuals_and_model
+from .solve import levenberg_marquardt
+
+__all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
+           "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
+           "AXIS_FLOOR", "A_NEGLIGIBLE", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
+
+STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN")
+G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN = range(len(STAGES))
+#: the windows, texture models and slip directions, in the order of their codes in ``Analysis``
+WINDOWS = ("gaussian", "hertz")
+TEXTURES = ("isotropic", "directional")
+DIRECTIONS = ("oblique", "along x", "along y")
+
+#: a window margin (chi-square in units of the correlated-bin scale) at least this large decides between the windows
+WINDOW_DECISIVE = 6.0
+#: a poor isotropic fit is explained by a directional lobe when that brings its reduced chi-square this low
+DIRECTIONAL_EXPLAINS = 1.5
+#: angular coefficients (``forward.ANISO``) that detect a directional lobe: its second harmonic
+DETECTING = 2
+#: below this AIC margin the texture models are averaged by Akaike weight (the loser's weight above 0.7 %)
+TEXTURE_AVERAGED = 10.0
+#: a minor speed below this fraction of the major one is tested against 0
+DIRECTION_TESTED = 0.3
+#: a speed held at 0 is held at this fraction of the other (the parameter is log|v|): its effect on the
+#: spectra, quadratic in it, is 1e-6 of the major speed's
+AXIS_FLOOR = 1e-3
+#: contact radius (m) standing for "no window": its offset 3 (d2^2 - d1^2) / (2 a^2) is 1e-4 at the paper's depths
+A_NEGLIGIBLE = 0.1
+#: the window's need is tested where a is measured to worse than this relative error
+WINDOW_TEST_REL_ERR = 0.05
+#: chi2 rise (in units of a's variance scale) below which a -> infinity is not rejected: one-sided 95 %
+DELTA_95 = 2.71
+#: chi-square the Hertz disk's own starts must gain over H1 to replace it
+EXPLORED_GAIN = 0.1
+#: iterations of a solve from a given point: ``core``'s final ones and three more solves' worth where a fit
+#: has not settled; a solve ends once the decrement still to go is below ``core.STOP_TOL``, or after
+#: ``core.ITERATIONS[2]`` below ``core.DECREMENT_TOL`` (converged)
+N_FINAL = 4 * ITERATIONS[2]
+
+_N_FIRST, _N_START, _ = ITERATIONS
+_I_V = np.array([INDEX["log_vx"], INDEX["log_vy"]])
+_I_A = INDEX["log_a"]
+_I_VVA = np.array([INDEX["log_vx"], INDEX["log_vy"], INDEX["log_a"]])
+_I_ANISO = np.array([INDEX[name] for name in ANISO])
+
+
+class Choices(NamedTuple):
+    """What the user fixed, as data (one program for every choice).
+
+    window, texture: 0 to choose per record, else 1 + the index into ``WINDOWS`` / ``TEXTURES``;
+    direction: 0 to choose, else 1 + the index into ``DIRECTIONS``; test_window: test whether the data
+    need the contact window (``WN``); refit: go on from the given ``Start`` with every choice held (the
+    window given by ``window``, the texture and direction by the start's free mask)."""
+
+    window: int = 0
+    texture: int = 0
+    direction: int = 0
+    test_window: bool = True
+    refit: bool = False
+
+
+class Stages(NamedTuple):
+    """Where each stage (``STAGES``) ended: theta, free (K, P); chi2, redchi, n_data (K,); status (K,) of
+    the solution (``core.STATUS``); active (K,): whether the stage ran; hertz (K,): its window; errors:
+    its ``core.Errors`` (zeros where not computed: a stage off, or G0's scouting); r, jac, model: the
+    residuals (K, R), their Jacobian (K, R, P) and the model's spectra at its solution; iterations (K,):
+    the evaluations of the residuals and their Jacobian it took."""
+
+    theta: jax.Array
+    free: jax.Array
+    chi2: jax.Array
+    redchi: jax.Array
+    n_data: jax.Array
+    status: jax.Array
+    active: jax.Array
+    hertz: jax.Array
+    errors: Errors
+    r: jax.Array
+    jac: jax.Array
+    model: ModelSpectra
+    iterations: jax.Array
+
+
+class Analysis(NamedTuple):
+    """What ``analyse`` returns (arrays; a leading batch axis under ``vmap``).
+
+    summary: the kept fit (``core.Summary``; its ``data`` the Gaussian window's, ``data_h`` the Hertz
+    disk's). window: index into ``WINDOWS``; window_margin: chi-square margin in units of the
+    correlated-bin scale (positive favours the Hertz disk; nan where not compared); window_weight: the
+    kept window's Akaike weight (1 where decisive); window_other, window_other_sd (3,): the other
+    window's log vx, log vy, log a and their errors (where averaged); explored: the Hertz disk's own
+    starts replaced the first Hertz fit; explored_chi2 (2,): the first fit's and theirs; fresh: the
+    Gaussian window's own starts replaced its refit. texture: index into ``TEXTURES``; texture_margin
+    (AIC, the loser's minus the winner's), texture_weight, texture_other, texture_other_sd as for the
+    window; texture_note: 0 none, 1 the lobe did not fit, 2 the lobe does not describe the spectra, 3 a
+    decisive lobe, 4 averaged; texture_lobe (4,): the lobe's coefficients (the directional fit's);
+    texture_redchi (2,): the isotropic and directional reduced chi-squares. direction: index into
+    ``DIRECTIONS``; direction_margin (AIC in the minor speed's error scale; nan where not tested);
+    direction_forced; oblique: the fit with both speeds free where one is held (theta, free, scales
+    (P,) each, chi2; else the kept fit's). window_needed; window_rise: chi2's rise with a held negligible;
+    window_threshold. stages: ``Stages``.
+    """
+
+    summary: Summary
+    data_h: JointData
+    window: jax.Array
+    window_margin: jax.Array
+    window_weight: jax.Array
+    window_other: jax.Array
+    window_other_sd: jax.Array
+    explored: jax.Array
+    explored_chi2: jax.Array
+    fresh: jax.Array
+    texture: jax.Array
+    texture_margin: jax.Array
+    texture_weight: jax.Array
+    texture_other: jax.Array
+    texture_other_sd: jax.Array
+    texture_note: jax.Array
+    texture_lobe: jax.Array
+    texture_redchi: jax.Array
+    direction: jax.Array
+    direction_margin: jax.Array
+    direction_forced: jax.Array
+    oblique_theta: jax.Array
+    oblique_free: jax.Array
+    oblique_scales: jax.Array
+    oblique_chi2: jax.Array
+    window_needed: jax.Array
+    window_rise: jax.Array
+    window_threshold: jax.Array
+    stages: Stages
+
+
+class _Plan(NamedTuple):
+    starts: jax.Array
+    free: jax.Array
+    n_start: jax.Array
+    n_explore: jax.Array
+    n_final: jax.Array
+    skip: jax.Array
+    hertz: jax.Array
+    active: jax.Array
+
+
+def _either(theta, args):
+    """The joint residuals and model under the window ``args[3]`` says (traced: one branch runs per record;
+    ``args[2]`` None: the Gaussian window's alone)."""
+    data_g, data_h, coef, use_hertz = args
+    if coef is None:
+        return residuals_and_model(theta, (data_g, None))
+    return jax.lax.cond(use_hertz, lambda t: residuals_and_model(t, (data_h, coef)),
+                        lambda t: residuals_and_model(t, (data_g, None)), theta)
+
+
+def _akaike_weight(margin):
+    """The Akaike weight of the one of two models ahead by ``margin`` (AIC or chi-square units)."""
+    return 1.0 / (1.0 + jnp.exp(-0.5 * margin))
+
+
+def _compared(st: Stages, k):
+    """Whether stage ``k`` ran and gave values to compare (ok, not converged or poor)."""
+    s = st.status[k]
+    return st.active[k] & ((s == 0) | (s == 2) | (s == 3))
+
+
+def _poor(st: Stages, k):
+    s = st.status[k]
+    return st.active[k] & ((s == 2) | (s == 3))
+
+
+class _Window(NamedTuple):
+    kept: jax.Array
+    other: jax.Array
+    margin: jax.Array
+    weight: jax.Array
+
+
+def _compare_windows(st: Stages, h, g, bin_factor) -> _Window:
+    """The contact window of one record: the Hertz fit (stage ``h``) against the Gaussian refit from it (``g``).
+
+    Both models have the same parameters, so the criterion is the chi-square difference in units of the
+    correlated-bin scale (the bin factor times the better fit's reduced chi-square, at least 1, as the noise
+    scale of an F test is the better model's): positive favours Hertz. Below ``WINDOW_DECISIVE`` the data
+    cannot tell the windows apart: the fit kept is the Hertz one (a fingertip's contact is a Hertz disk)
+    unless only the Gaussian window describes the spectra (reduced chi-square at most ``POOR_FIT_REDCHI``),
+    and vx, vy and a are averaged over both by their Akaike weights, exp(-margin / 2) relative. Returns
+    the kept stage, the other (-1 where decisive), the margin (nan where not compared) and the kept
+    window's weight."""
+    chi_h, chi_g = st.chi2[h], st.chi2[g]
+    rc_h, rc_g = st.redchi[h], st.redchi[g]
+    valid = _compared(st, h) & st.active[g] & jnp.isfinite(chi_g)
+    scale = jnp.maximum(bin_factor, 1.0) * jnp.maximum(jnp.minimum(rc_h, rc_g), 1.0)
+    margin = (chi_g - chi_h) / scale
+    hertz, gauss = margin >= WINDOW_DECISIVE, margin <= -WINDOW_DECISIVE
+    close = valid & ~hertz & ~gauss
+    keep_gauss = (rc_h > 2.0) & (rc_g <= 2.0)          # only the Gaussian window describes the spectra
+    kept = jnp.where(valid & (gauss | close & keep_gauss), g, h)
+    w_hertz = _akaike_weight(margin)
+    return _Window(kept, jnp.where(close, jnp.where(keep_gauss, h, g), -1), jnp.where(valid, margin, jnp.nan),
+                   jnp.where(close, jnp.where(keep_gauss, 1.0 - w_hertz, w_hertz), 1.0))
+
+
+def _hertz_fit(st: Stages):
+    """H1, or HX where the disk's own starts found a lower chi-square (by more than rounding)."""
+    better = st.active[HX] & (st.chi2[HX] < st.chi2[H1] - jnp.maximum(EXPLORED_GAIN, 1e-9 * jnp.abs(st.chi2[H1])))
+    return jnp.where(better, HX, H1), better
+
+
+def _first_window(st: Stages, bin_factor) -> _Window:
+    return _compare_windows(st, H1, GW1, bin_factor)
+
+
+class _WindowFit(NamedTuple):
+    index: jax.Array
+    hertz: jax.Array
+    choice: _Window
+    explored: jax.Array
+    fresh: jax.Array
+
+
+def _window_fit(st: Stages, choices: Choices, bin_factor) -> _WindowFit:
+    """The fit of the chosen (or given) window after G0-GF."""
+    h, explored = _hertz_fit(st)
+    gw = jnp.where(explored, GW2, GW1)
+    choice = _compare_windows(st, h, gw, bin_factor)
+    gauss_chosen = choice.kept == gw
+    fresh = st.active[GF] & ((st.status[GF] != 2) | (st.chi2[GF] < st.chi2[gw]))
+    chosen = jnp.where(gauss_chosen & fresh, GF, choice.kept)
+    window = jnp.asarray(choices.window)
+    index = jnp.where(window == 1, G0, jnp.where(window == 2, h, chosen))
+    none = _Window(index, jnp.asarray(-1), jnp.asarray(jnp.nan), jnp.asarray(1.0))
+    choice = jax.tree.map(lambda a, b: jnp.where(window == 0, a, b), choice, none)
+    return _WindowFit(index, st.hertz[index], choice, explored & (window != 1), fresh & (window == 0))
+
+
+class _TextureFit(NamedTuple):
+    index: jax.Array
+    directional: jax.Array
+    other: jax.Array
+    margin: jax.Array
+    weight: jax.Array
+    note: jax.Array
+
+
+def _texture_fit(st: Stages, w, bin_factor) -> _TextureFit:
+    """The texture model of one record: the isotropic fit (stage ``w``) against the directional one.
+
+    The lobe is detected with its second harmonic (``DETECTING`` coefficients freed from the isotropic
+    optimum: T2) and, where that is decisive, estimated with all four (T4, from T2's optimum): the fourth
+    harmonic is second order in the anisotropy, so a lobe too weak to detect decisively has none worth
+    fitting, while a decisive lobe's shape moves the minor speed. The lobe is kept where it lowers Akaike's
+    criterion with the correlated-bin correction (chi2 / (b c) + 2 k; the quasi-likelihood scale c is the
+    directional fit's reduced chi-square, so that a misfit it does not remove is not read as evidence),
+    and only if it describes the spectra (reduced chi-square at most ``DIRECTIONAL_EXPLAINS``): a lumpy
+    spectrum of few discrete modes is not a directional texture. Below a margin of ``TEXTURE_AVERAGED``
+    vx, vy and a are averaged over the isotropic and second-harmonic fits by their Akaike weights."""
+    chi_w, chi_d = st.chi2[w], st.chi2[T2]
+    n_data = st.n_data[w]
+    k_iso, k_dir = jnp.sum(st.free[w]), jnp.sum(st.free[T2])
+    c = jnp.maximum(chi_d / jnp.maximum(n_data - k_dir, 1.0), 1.0)
+    b = jnp.maximum(bin_factor, 1.0)
+    ic_iso, ic_dir = chi_w / (b * c) + 2.0 * k_iso, chi_d / (b * c) + 2.0 * k_dir
+    ran = st.active[T2]
+    finite = jnp.isfinite(chi_d)
+    explains = st.redchi[T2] <= DIRECTIONAL_EXPLAINS
+    valid = ran & finite & explains
+    ahead = ic_dir < ic_iso
+    margin = jnp.abs(ic_iso - ic_dir)
+    decisive = margin >= TEXTURE_AVERAGED
+    shaped = st.active[T4] & jnp.isfinite(st.chi2[T4]) & (st.chi2[T4] <= chi_d + 1e-6 * n_data)
+    index = jnp.where(valid & ahead, jnp.where(shaped, T4, T2), w)
+    close = valid & ~decisive
+    poor = (st.redchi[w] > 2.0) & (st.redchi[T2] < st.redchi[w])
+    note = jnp.where(ran & ~finite, 1, jnp.where(ran & finite & ~explains & poor, 2,
+                     jnp.where(valid & decisive & ahead, 3, jnp.where(close, 4, 0))))
+    directional = jnp.any(st.free[index][_I_ANISO])
+    return _TextureFit(index, directional, jnp.where(close, jnp.where(ahead, w, T2), -1),
+                       jnp.where(valid, margin, jnp.nan), jnp.where(close, _akaike_weight(margin), 1.0), note)
+
+
+def _minor(st: Stages, t, choices: Choices):
+    """(minor speed's index into (vx, vy), whether DA tests it) for the fit of stage ``t``."""
+    theta, free = st.theta[t], st.free[t]
+    mode = jnp.asarray(choices.direction)
+    minor = jnp.where(mode == 0, jnp.argmin(theta[_I_V]), jnp.where(mode == 2, 1, 0))
+    small = theta[_I_V][minor] - theta[_I_V][1 - minor] < np.log(DIRECTION_TESTED)
+    testable = (mode != 1) & _compared(st, t) & free[_I_V].all() & ~jnp.asarray(choices.refit)
+    return minor, testable & ((mode != 0) | small)
+
+
+def _direction_fit(st: Stages, t, choices: Choices, scales_t):
+    """The slip direction of one record: both speeds free (stage ``t``) or the minor one held at 0 (DA).
+
+    Tested where both speeds are free and the minor one is below ``DIRECTION_TESTED`` of the major (or a
+    direction is given): DA holds it at ``AXIS_FLOOR`` of the major, from ``t``'s optimum. Akaike's
+    criterion in units of the minor speed's own error scale (its variance ratio ``scales_t``, the unit of
+    its profile intervals): the axis model is kept where holding the speed raises chi-square by at most 2
+    of that scale, i.e. where it is within 1.4 sigma of 0 and a fitted value would be noise. A given
+    direction is held whatever the data say. Returns the kept stage, the margin (the loser's AIC minus the
+    winner's; nan where not tested or given) and whether the direction was given."""
+    minor, _ = _minor(st, t, choices)
+    forced = jnp.asarray(choices.direction) >= 2
+    scale = jnp.maximum(scales_t[_I_V][minor], 1e-12)
+    margin = 2.0 - (st.chi2[DA] - st.chi2[t]) / scale
+    ok = _compared(st, DA) & jnp.isfinite(st.chi2[DA])
+    take = st.active[DA] & (forced | ok & (margin >= 0.0))
+    return (jnp.where(take, DA, t), jnp.where(st.active[DA] & ~forced & ok, jnp.abs(margin), jnp.nan),
+            forced & st.active[DA])
+
+
+def _window_needed(tested, chi2_held, chi2, scale_a):
+    """Whether the data reject a negligible window (a held at ``A_NEGLIGIBLE``, WN): a likelihood-ratio test,
+    run where a is loosely measured. Where holding a raises chi2 by less than ``DELTA_95`` x a's variance
+    scale, the data cannot tell the window from none at 95 %, and a fitted radius would be a number fitted
+    into noise: a is then reported as a lower bound. Returns (needed, the rise, the threshold)."""
+    rise = chi2_held - chi2
+    threshold = DELTA_95 * scale_a
+    return ~jnp.asarray(tested, bool) | ~jnp.isfinite(chi2_held) | (rise >= threshold), rise, threshold
+
+
+def analyse(record: Record, settings: Settings, choices: Choices = Choices(), start: Start | None = None
+            ) -> Analysis:
+    """The analysis of one record (see the module). Pure jnp, fixed shapes: jit and vmap freely.
+
+    settings: ``core.Settings``; with the Hertz table's coefficients in ``hertz`` both windows are in the
+    program, with None the Gaussian window's alone (``Choices.window`` is then 1); choices: ``Choices``;
+    start: where a refit goes on from (``Choices.refit``)."""
+    start = no_start() if start is None else start
+    coef = settings.hertz
+    if coef is None:            # a program of the Gaussian window alone
+        choices = choices._replace(window=1)
+    refit = jnp.asarray(choices.refit)
+    prep_g, prep_h, hertz_starts = prepare(record, settings, both_windows=True)
+    data_g, data_h = prep_g.data, prep_h.data
+    b = prep_g.band
+    i0 = b.i0
+    bin_factor = record.seg.bin_factor
+    p = prep_g.starts.shape[-1]
+    dtype = prep_g.starts.dtype
+    n_bins = jnp.sum(data_g.mask_s11[0]) + jnp.sum(data_g.mask_s11[1] | data_g.mask_xy[0])
+    window = jnp.asarray(choices.window)
+    texture = jnp.asarray(choices.texture)
+
+    def errors_at(st: Stages, k) -> Errors:
+        return jax.tree.map(lambda x: x[k], st.errors)
+
+    def off(hertz=False):       # no iteration at all
+        return _Plan(prep_g.starts, prep_g.free, jnp.asarray(1), jnp.asarray(1), jnp.asarray(-1), jnp.asarray(True),
+                     jnp.asarray(hertz), jnp.asarray(False))
+
+    def from_point(theta, free, hertz, active):
+        """A solve from one point, or a stage switched off."""
+        plan = _Plan(jnp.broadcast_to(theta, prep_g.starts.shape), free, jnp.asarray(1), jnp.asarray(1),
+                     jnp.asarray(N_FINAL), jnp.asarray(True), jnp.asarray(hertz), jnp.asarray(active))
+        return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
+
+    def own_starts(prep, n_explore, hertz, active, n_final=N_FINAL):
+        plan = _Plan(prep.starts, prep.free, jnp.asarray(_N_START), jnp.asarray(n_explore), jnp.asarray(n_final),
+                     jnp.asarray(False), jnp.asarray(hertz), jnp.asarray(active))
+        return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
+
+    def plan_g0(st, ends):
+        given = _Plan(start.theta.astype(dtype), start.free, jnp.asarray(1), jnp.asarray(1), jnp.asarray(N_FINAL),
+                      jnp.asarray(True), window == 2, jnp.asarray(True))
+        gauss = own_starts(prep_g, OWN_STARTS["gaussian"], False, True)
+        scout = own_starts(prep_g, N_STARTS, False, True, n_final=0)
+        plan = jax.tree.map(lambda a, b: jnp.where(window == 1, a, b), gauss, scout)
+        return jax.tree.map(lambda a, b: jnp.where(refit, a, b), given, plan)
+
+    def plan_h1(st, ends):
+        thetas = ends.at[:, _I_A].add(np.log(HERTZ_PER_GAUSS))
+        active = ~refit & (window != 1)
+        plan = _Plan(thetas, prep_h.free, jnp.asarray(1), jnp.asarray(N_STARTS), jnp.asarray(N_FINAL),
+                     jnp.asarray(False), jnp.asarray(True), active)
+        return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
+
+    def gauss_from(st, k, active):
+        theta = st.theta[k].at[_I_A].add(-np.log(HERTZ_PER_GAUSS))
+        return from_point(theta, st.free[k], False, active & ~refit & (window == 0) & _compared(st, k))
+
+    def plan_gw1(st, ends):
+        return gauss_from(st, H1, True)
+
+    def plan_hx(st, ends):
+        first = _first_window(st, bin_factor)
+        wanted = jnp.where(window == 0, _poor(st, first.kept), window == 2) & _poor(st, H1) & ~refit
+        starts = jax.lax.cond(wanted, hertz_starts, lambda: prep_h.starts)
+        return own_starts(prep_h._replace(starts=starts), OWN_STARTS["hertz"], True, wanted)
+
+    def plan_gw2(st, ends):
+        return gauss_from(st, HX, _hertz_fit(st)[1])
+
+    def plan_gf(st, ends):
+        h, explored = _hertz_fit(st)
+        gw = jnp.where(explored, GW2, GW1)
+        choice = _compare_windows(st, h, gw, bin_factor)
+        wanted = (window == 0) & (choice.kept == gw) & (st.status[gw] == 2) & ~refit
+        return own_starts(prep_g, OWN_STARTS["gaussian"], False, wanted)
+
+    def plan_t2(st, ends):
+        w = _window_fit(st, choices, bin_factor)
+        free = st.free[w.index].at[_I_ANISO[:DETECTING]].set(True)
+        return from_point(st.theta[w.index], free, w.hertz, (texture == 0) & _compared(st, w.index) & ~refit)
+
+    def plan_t4(st, ends):
+        w = _window_fit(st, choices, bin_factor)
+        t = _texture_fit(st, w.index, bin_factor)
+        wanted = (t.index == T2) & (t.note == 3)
+        return from_point(st.theta[T2], st.free[T2].at[_I_ANISO].set(True), w.hertz, wanted)
+
+    def texture_index(st):
+        w = _window_fit(st, choices, bin_factor)
+        return _texture_fit(st, w.index, bin_factor).index, w.hertz
+
+    def plan_da(st, ends):
+        t, hertz = texture_index(st)
+        minor, wanted = _minor(st, t, choices)
+        theta, free = st.theta[t], st.free[t]
+        i, major = _I_V[0] + minor, _I_V[0] + 1 - minor      # vx, vy are adjacent in the parameter vector
+        return from_point(theta.at[i].set(theta[major] + np.log(AXIS_FLOOR)), free.at[i].set(False), hertz, wanted)
+
+    def plan_wn(st, ends):
+        t, hertz = texture_index(st)
+        d, _, _ = _direction_fit(st, t, choices, errors_at(st, t).scales)
+        sd_a = errors_at(st, d).sd[_I_A]
+        wanted = (jnp.asarray(choices.test_window) & _compared(st, d) & st.free[d][_I_A]
+                  & (sd_a >= WINDOW_TEST_REL_ERR) & ~refit)
+        return from_point(st.theta[d].at[_I_A].set(np.log(A_NEGLIGIBLE)), st.free[d].at[_I_A].set(False), hertz,
+                          wanted)
+
+    def typed(planner):         # every branch of the switch returns the same types
+        def run(st, ends):
+            plan = planner(st, ends)
+            return _Plan(plan.starts.astype(dtype), plan.free.astype(bool), *(jnp.asarray(x, jnp.int32) for x in
+                         (plan.n_start, plan.n_explore, plan.n_final)),
+                         *(jnp.asarray(x, bool) for x in (plan.skip, plan.hertz, plan.active)))
+        return run
+
+    planners = [typed(f) for f in (plan_g0, plan_h1, plan_gw1, plan_hx, plan_gw2, plan_gf, plan_t2, plan_t4, plan_da,
+                                   plan_wn)]
+    assert len(planners) == len(STAGES)
+
+    def stage(carry, k):
+        st, ends = carry
+        plan = jax.lax.switch(k, planners, st, ends)
+        theta, r, jac, model, last, n_iter = levenberg_marquardt(
+            _either, plan.starts, (data_g, data_h, coef, plan.hertz), plan.free, prep_g.first, n_start=plan.n_start,
+            n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
+            stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL)
+        _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(theta, r, jac, plan.free)
+        finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
+        converged = finite & ((decrement < DECREMENT_TOL) | settled_physics(step_sigma, plan.free))
+        status = jnp.where(plan.active, fit_status(n_bins, finite, converged, redchi), 4)
+        chi2 = jnp.where(plan.active & jnp.isfinite(chi2), chi2, jnp.inf)
+        # the errors where the stage ended a solve (not G0's scouting), computed once for every later choice
+        e = jax.lax.cond(plan.active & (plan.n_final > 0),
+                         lambda: errors(record, data_g, plan.free, i0, theta, r, jac), lambda: blank)
+        new = (theta, plan.free, chi2, redchi, n_data.astype(dtype), status, plan.active, plan.hertz, e, r, jac, model,
+               n_iter)
+        st = jax.tree.map(lambda whole, x: whole.at[k].set(x), st, Stages(*new))
+        return (st, jnp.where(k == G0, last, ends)), None
+
+    n = len(STAGES)
+    args0 = (data_g, data_h, coef, jnp.asarray(False))
+    r_shape, model_shape = jax.eval_shape(_either, prep_g.starts[0], args0)
+    zeros = lambda x: jnp.zeros(x.shape, x.dtype)           # noqa: E731
+    blank = jax.tree.map(zeros, jax.eval_shape(lambda: errors(record, data_g, prep_g.free, i0, prep_g.starts[0],
+                                                              jnp.zeros(r_shape.shape, dtype),
+                                                              jnp.zeros(r_shape.shape + (p,), dtype))))
+    stacked = lambda tree: jax.tree.map(lambda x: jnp.zeros((n,) + x.shape, x.dtype), tree)    # noqa: E731
+    init = Stages(jnp.zeros((n, p), dtype), jnp.zeros((n, p), bool), jnp.full(n, jnp.inf, dtype),
+                  jnp.full(n, jnp.inf, dtype), jnp.zeros(n, dtype), jnp.full(n, 4, jnp.int32), jnp.zeros(n, bool),
+                  jnp.zeros(n, bool), stacked(blank), jnp.zeros((n,) + r_shape.shape, dtype),
+                  jnp.zeros((n,) + r_shape.shape + (p,), dtype), stacked(model_shape), jnp.zeros(n, jnp.int32))
+    (st, _), _ = jax.lax.scan(stage, (init, prep_g.starts), jnp.arange(n))
+
+    # the choices, from where the stages ended
+    w = _window_fit(st, choices, bin_factor)
+    t = _texture_fit(st, w.index, bin_factor)
+    t_index = jnp.where(texture == 0, t.index, w.index)
+    others = jnp.stack([w.choice.other, jnp.where(texture == 0, t.other, -1)])
+    e_t = errors_at(st, t_index)
+    d, d_margin, d_forced = _direction_fit(st, t_index, choices, e_t.scales)
+    theta, free, e = st.theta[d], st.free[d], errors_at(st, d)          # the kept fit
+    jac, model = st.jac[d], jax.tree.map(lambda x: x[d], st.model)
+    located = Located(i0, b.n_leak, b.k0, b.speed0)
+    summary = Summary(theta, e.cov, e.sd, free, e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond,
+                      e.decrement, e.step_sigma, e.converged, e.settled, e.status, e.n_bins, located, e.jackknife,
+                      model, jac, texture_sections(theta, e.cov, jac, model, data_g), data_g, e.spread)
+    needed, rise, threshold = _window_needed(st.active[WN], st.chi2[WN], e.chi2, e.scales[_I_A])
+    other_sd = st.errors.sd[jnp.maximum(others, 0)][:, _I_VVA]
+    nan3 = jnp.full(3, jnp.nan, dtype)
+    return Analysis(
+        summary=summary, data_h=data_h, window=w.hertz.astype(jnp.int32), window_margin=w.choice.margin,
+        window_weight=w.choice.weight,
+        window_other=jnp.where(others[0] >= 0, st.theta[jnp.maximum(others[0], 0)][_I_VVA], nan3),
+        window_other_sd=other_sd[0], explored=w.explored, explored_chi2=jnp.stack([st.chi2[H1], st.chi2[HX]]),
+        fresh=w.fresh, texture=jnp.where(texture == 0, t.directional, texture == 2).astype(jnp.int32),
+        texture_margin=jnp.where(texture == 0, t.margin, jnp.nan),
+        texture_weight=jnp.where(texture == 0, t.weight, 1.0),
+        texture_other=jnp.where(others[1] >= 0, st.theta[jnp.maximum(others[1], 0)][_I_VVA], nan3),
+        texture_other_sd=other_sd[1], texture_note=jnp.where(texture == 0, t.note, 0),
+        texture_lobe=jnp.where(st.active[T4] & (t.index == T4), st.theta[T4], st.theta[T2])[_I_ANISO],
+        texture_redchi=jnp.stack([st.redchi[w.index], st.redchi[T2]]),
+        direction=jnp.where(~free[_I_V[0]] & free[_I_V[1]], 2, jnp.where(free[_I_V[0]] & ~free[_I_V[1]], 1, 0)),
+        direction_margin=d_margin, direction_forced=d_forced,
+        oblique_theta=st.theta[t_index], oblique_free=st.free[t_index], oblique_scales=e_t.scales, oblique_chi2=st.chi2[t_index],
+        window_needed=needed, window_rise=rise, window_threshold=threshold, stages=st)
+
+
+def summary_of(a: Analysis) -> Summary:
+    """The kept fit's ``Summary`` with the data of its window (one record's ``Analysis``)."""
+    return a.summary._replace(data=a.data_h) if int(a.window) == 1 else a.summary

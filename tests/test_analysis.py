@@ -1,0 +1,60 @@
+"""The analysis program (``inference.analysis``): one record's every choice inside one fixed-shape program,
+the same whether it runs on one record, on threads over the CPU's cores or vmapped over a chunk."""
+
+import numpy as np
+import pytest
+
+from conftest import GAUSS
+from tactile_jax.inference import analysis as an
+from tactile_jax.inference import run
+from tactile_jax.inference.fit import record_of
+from tactile_jax.inference.options import FitOptions, analysis_settings, choices_of
+from tactile_jax.simulation.scene import Scene, simulate
+
+
+def _records(options, n=4):
+    scenes = [((0.03, 0.012), 1.5e-3), ((0.02, 0.0), 2.0e-3), ((0.012, 0.025), 1.0e-3), ((0.045, 0.004), 1.2e-3)]
+    out = []
+    for k, (v, a) in enumerate(scenes[:n]):
+        rec = simulate(Scene(velocity=v, contact_radius=a, duration=4.0, snr_db=45.0, seed=30 + k))
+        out.append(record_of(np.asarray(rec.signals, float), rec.fs, rec.depths, options))
+    return out
+
+
+def _same(a, b):
+    """Two analyses of one record agree: values within 1e-6 of their errors, errors to 1e-6, the same choices."""
+    sd = np.abs(b.summary.sd).max()
+    assert np.allclose(a.summary.theta, b.summary.theta, rtol=0, atol=1e-6 * sd)
+    assert np.allclose(a.summary.sd, b.summary.sd, rtol=1e-6, atol=1e-12)
+    for field in ("window", "texture", "direction", "window_needed"):
+        assert int(getattr(a, field)) == int(getattr(b, field)), field
+    assert int(a.summary.status) == int(b.summary.status)
+
+
+def test_the_stages_report_what_ran():
+    """Every stage's outcome is data: which ran, how many iterations each took, its chi-square; a stage off
+    costs nothing. The Gaussian window's program has no Hertz stages."""
+    options = FitOptions(**GAUSS)
+    rec = _records(options, 1)[0]
+    a = run.analyse_one(rec, analysis_settings(options), choices_of(options))
+    st = a.stages
+    ran = {name for name, on in zip(an.STAGES, st.active) if on}
+    assert "G0" in ran and not ran & {"H1", "GW1", "HX", "GW2", "GF"}
+    assert all(int(n) == 0 for n, on in zip(st.iterations, st.active) if not on)
+    assert int(st.iterations[an.G0]) > 3 and np.isfinite(st.chi2[an.G0])
+    assert int(a.window) == 0 and np.isnan(float(a.window_margin))
+    # the kept fit is one of the stages' ends
+    kept = [k for k in range(len(an.STAGES)) if st.active[k] and np.array_equal(st.theta[k], a.summary.theta)]
+    assert kept
+
+
+@pytest.mark.slow
+def test_a_vmapped_chunk_on_the_cpu_equals_the_single_record_program():
+    """The batched path (``jax.vmap`` over a chunk of 4 different records) on the CPU gives each record's
+    single-record values and errors, with both windows in the program."""
+    options = FitOptions()
+    recs = _records(options)
+    settings, choices = analysis_settings(options), choices_of(options)
+    many = run.analyse_many(recs, settings, choices, size=4, vmapped=True)
+    for rec, a in zip(recs, many):
+        _same(a, run.analyse_one(rec, settings, choices))
