@@ -214,6 +214,11 @@ def one(name: str, size: int, args) -> dict:
             compiles[phase[0]][1] += duration
 
     jax.monitoring.register_event_duration_secs_listener(listen)
+    # a fresh persistent compilation cache, as the CLI keeps one: the first pass compiles (in each process the
+    # batch spawns), the second loads the compiled program from it
+    cache = Path(tempfile.mkdtemp(prefix="tjx_tp_cache_")) / "jax"
+    jax.config.update("jax_compilation_cache_dir", str(cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     clean, ref, truth_pool = pool(name, Path(args.out) / f"throughput_pool_{name}_{args.pool}.npz", args.pool)
     work = Path(tempfile.mkdtemp(prefix=f"tjx_tp_{name}_"))
     try:
@@ -224,7 +229,7 @@ def one(name: str, size: int, args) -> dict:
             phase[0] = label
             t0 = time.perf_counter()
             summary = batch_mod.run_batch([str(p) for p in files], work / f"rows_{k}.json", chunk_size=args.chunk,
-                                          progress=False, resume=False,
+                                          progress=False, resume=False, processes=args.processes,
                                           options=FitOptions(window=args.window))
             wall = time.perf_counter() - t0
             rows = json.loads((work / f"rows_{k}.json").read_text())
@@ -376,6 +381,7 @@ def main():
     ap.add_argument("--set", dest="sets", default="both", choices=["x", "oblique", "both"])
     ap.add_argument("--pool", type=int, default=16, help="simulated scenes per set")
     ap.add_argument("--chunk", type=int, default=32, help="run_batch's chunk_size")
+    ap.add_argument("--processes", type=int, default=None, help="run_batch's processes (default: one per core)")
     ap.add_argument("--window", choices=("gaussian", "hertz"), default=None,
                     help="fit one contact window (default: both, the one the data prefer kept, as batch does)")
     ap.add_argument("--scipy-max", type=int, default=1000, help="scipy loop on at most this many records")
@@ -393,7 +399,7 @@ def main():
     results = []
     for name in sets:
         for size in sizes:
-            cmd = [sys.executable, __file__, "--one", name, str(size), f"--pool={args.pool}", f"--chunk={args.chunk}", *([f"--window={args.window}"] if args.window else []),
+            cmd = [sys.executable, __file__, "--one", name, str(size), f"--pool={args.pool}", f"--chunk={args.chunk}", *([f"--window={args.window}"] if args.window else []), *([f"--processes={args.processes}"] if args.processes else []),
                    f"--scipy-max={args.scipy_max}", f"--out={args.out}"]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
             sys.stderr.write("".join(line + "\n" for line in proc.stderr.splitlines()

@@ -139,6 +139,20 @@ def test_dask_local_cluster_gives_the_same_rows(local_run, dataset, tmp_path):
     assert read_results(out) == rows
 
 
+@pytest.mark.slow
+def test_chunks_on_spawned_processes_give_the_same_rows(cache_dir, tmp_path):
+    """The default on a CPU: chunks on one spawned process per core (each loading the compiled program from
+    the persistent cache) give the rows of the chunks run in this process."""
+    pool = [simulate(Scene(velocity=(0.03, 0.01 * (k % 3)), contact_radius=1.5e-3, duration=2.048, seed=k,
+                           snr_db=50.0)).signals for k in range(16)]
+    write_recording(tmp_path / "many.npz", Recording(np.stack(pool), 1000.0, DEPTHS))
+    here, there = tmp_path / "here.json", tmp_path / "there.json"
+    run_batch([tmp_path / "many.npz"], here, progress=False, processes=1, options=FitOptions(**GAUSS))
+    summary = run_batch([tmp_path / "many.npz"], there, progress=False, processes=2, options=FitOptions(**GAUSS))
+    assert summary.n_rows == 16 and summary.n_failed == 0
+    assert read_results(there) == read_results(here)
+
+
 def test_cli_batch_exit_zero_with_failures(dataset, tmp_path, cache_dir, local_run):
     from click.testing import CliRunner
 

@@ -374,9 +374,10 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     chunk_size: records per compiled call (memory grows with it, not with the batch).
     workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
     scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
-    processes: without Dask, the chunks run on this many spawned processes (None: one per CPU core;
-        1: in this process). A batch of fewer than ``2 * MIN_PER_PROCESS`` records runs here, and the
-        chunks are made small enough that every process gets one.
+    processes: without Dask, the chunks run on this many spawned processes (None: one per CPU core where
+        a persistent compilation cache is set, from which each loads the compiled program, as the CLI
+        sets one; else 1); 1: in this process. A batch of fewer than ``2 * MIN_PER_PROCESS`` records
+        runs here, and the chunks are made small enough that every process gets one.
     progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
         status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
 
@@ -423,8 +424,15 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
             rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model, tag))
     chunks = _plan(infos, done, int(chunk_size))
     total = sum(stop - start for _, segs in chunks for _, start, stop in segs)
+    import jax
+
+    x64 = bool(jax.config.jax_enable_x64)
+    cache_dir = jax.config.jax_compilation_cache_dir or None
     local = workers is None and scheduler is None
-    n_proc = min(int(processes or os.cpu_count() or 1), max(total // MIN_PER_PROCESS, 1)) if local else 1
+    # by default one process per core where a persistent cache lets them load the compiled program (without
+    # one, each would compile it again)
+    wanted = int(processes or ((os.cpu_count() or 1) if cache_dir else 1))
+    n_proc = min(wanted, max(total // MIN_PER_PROCESS, 1)) if local else 1
     if n_proc > 1 and len(chunks) < n_proc:           # every process a chunk
         chunks = _plan(infos, done, max(1, math.ceil(total / n_proc)))
     timings = {"scan": t_scan, "read": 0.0, "spectra": 0.0, "fit": 0.0, "write": 0.0}
@@ -447,10 +455,6 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
 
     if len(rows) != len(kept):
         write()                                           # rows of unreadable files: saved before any fit
-    import jax
-
-    x64 = bool(jax.config.jax_enable_x64)
-    cache_dir = jax.config.jax_compilation_cache_dir or None
     try:
         if local and n_proc <= 1:
             for size, segs in chunks:
@@ -478,11 +482,18 @@ def _hashable(options: FitOptions) -> FitOptions:
     return dataclasses.replace(options, gain_ratio=g, velocity=v)
 
 
-def _lost(part, segs, exc, model, tag) -> list[dict]:
-    """The rows of a chunk whose worker failed (transient: redone on resume)."""
-    text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
-    return [_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model, tag)
-            for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)]
+def _collect(futures: dict, as_completed, consume, model, tag) -> None:
+    """Consume the rows of each chunk's future (-> (part, segs)) as it completes; a chunk whose worker failed
+    gets rows of status ``worker_error`` (transient: redone on resume)."""
+    for fut in as_completed(futures):
+        part, segs = futures[fut]
+        try:
+            consume(*fut.result())
+        except Exception as exc:  # noqa: BLE001 - a lost worker: the chunk's rows say so
+            text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+            consume([_error_row(info.path, i, "worker_error", f"{info.path}: the chunk failed: {text}", model, tag)
+                     for info, (_, start, stop) in zip(part, segs) for i in range(start, stop)],
+                    {"read": 0.0, "spectra": 0.0, "fit": 0.0})
 
 
 def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_dir):
@@ -498,12 +509,7 @@ def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_di
         for size, segs in chunks:
             part = [infos[fi] for fi, _, _ in segs]
             futures[pool.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir)] = (part, segs)
-        for fut in as_completed(futures):
-            part, segs = futures[fut]
-            try:
-                consume(*fut.result())
-            except Exception as exc:  # noqa: BLE001 - a lost process: the chunk's rows say so (transient)
-                consume(_lost(part, segs, exc, model, tag), {"read": 0.0, "spectra": 0.0, "fit": 0.0})
+        _collect(futures, as_completed, consume, model, tag)
 
 
 def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):
@@ -529,12 +535,7 @@ def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, c
                 fut = client.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir, pure=False,
                                     key=f"tactile-chunk-{n}-{os.getpid()}-{time.time_ns()}")
                 futures[fut] = (part, segs)
-            for fut in as_completed(futures):
-                part, segs = futures[fut]
-                try:
-                    consume(*fut.result())
-                except Exception as exc:  # noqa: BLE001 - a lost worker: the chunk's rows say so (transient)
-                    consume(_lost(part, segs, exc, model, tag), {"read": 0.0, "spectra": 0.0, "fit": 0.0})
+            _collect(futures, as_completed, consume, model, tag)
         finally:
             client.close()
             if cluster is not None:

@@ -83,44 +83,8 @@ def _source_key() -> str:
 
 
 def _single_core():
-    """``core`` for one record, jit-compiled. Where a persistent compilation cache is set (the CLI sets one),
-    its traced program is also kept there with ``jax.export``: a later process deserialises it instead of
-    tracing ``core`` again (5 s on a 2-core CPU) and finds its compiled form in the cache."""
-    from pathlib import Path
-
-    jitted = jax.jit(core)
-    cache = jax.config.jax_compilation_cache_dir
-    if not cache:
-        return jitted
-    try:
-        from jax import export
-
-        for t in _TYPES:
-            try:
-                export.register_namedtuple_serialization(t, serialized_name=f"tactile_jax.{t.__name__}")
-            except ValueError:          # registered already
-                pass
-        states = {}
-
-        def call(rec, settings, start):
-            window = settings.window                    # one program per window
-            state = states.setdefault(window, {})
-            if "exp" not in state:
-                path = Path(cache).parent / "export" / f"core-{window}-{_source_key()}.bin"
-                if path.exists():
-                    state["exp"] = export.deserialize(bytearray(path.read_bytes()))
-                else:
-                    state["exp"] = export.export(jitted)(rec, settings, start)
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    tmp = path.with_suffix(".tmp")
-                    tmp.write_bytes(state["exp"].serialize())
-                    tmp.replace(path)
-                state["call"] = jax.jit(state["exp"].call)
-            return state["call"](rec, settings, start)
-
-        return call
-    except ImportError:                 # jax.export's serialisation needs flatbuffers
-        return jitted
+    """``core`` for one record, jit-compiled, kept in the persistent cache where one is set (``_exported``)."""
+    return _exported(core, "core")
 
 
 def _exported(fn, name: str):
@@ -142,11 +106,16 @@ def _exported(fn, name: str):
             export.register_namedtuple_serialization(t, serialized_name=f"tactile_jax.{t.__name__}")
         except ValueError:              # registered already
             pass
-    state = {}
+    states = {}
 
     def call(*args):
-        if "call" not in state:
-            path = Path(cache).parent / "export" / f"{name}-{_source_key()}.bin"
+        # one export per structure of the arguments (the analysis of both windows, or of the Gaussian alone)
+        tree = jax.tree.structure(args)
+        if tree not in states:
+            import hashlib
+
+            shape = hashlib.sha1(str(tree).encode()).hexdigest()[:8]
+            path = Path(cache).parent / "export" / f"{name}-{shape}-{_source_key()}.bin"
             if path.exists():
                 exp = export.deserialize(bytearray(path.read_bytes()))
             else:
@@ -155,8 +124,8 @@ def _exported(fn, name: str):
                 tmp = path.with_suffix(f".{os.getpid()}.tmp")
                 tmp.write_bytes(exp.serialize())
                 tmp.replace(path)
-            state["call"] = jax.jit(exp.call)
-        return state["call"](*args)
+            states[tree] = jax.jit(exp.call)
+        return states[tree](*args)
 
     return call
 
