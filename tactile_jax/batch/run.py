@@ -377,7 +377,8 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     processes: without Dask, the chunks run on this many spawned processes (None: one per CPU core where
         a persistent compilation cache is set, from which each loads the compiled program, as the CLI
         sets one; else 1); 1: in this process. A batch of fewer than ``2 * MIN_PER_PROCESS`` records
-        runs here, and the chunks are made small enough that every process gets one.
+        runs here, and the chunks are made small enough that every process gets one. A script that
+        runs more than one needs the ``if __name__ == "__main__":`` guard of spawned processes.
     progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
         status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
 
