@@ -418,8 +418,9 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
     def plan_g0(st, ends):
-        given = _Plan(start.theta.astype(dtype), start.free, jnp.asarray(1), jnp.asarray(1), jnp.asarray(N_FINAL),
-                      jnp.asarray(True), window == 2, jnp.asarray(True))
+        # a refit (a profile point, a model of ``fit``'s extras) goes on for ``core``'s final iterations, no more
+        given = _Plan(start.theta.astype(dtype), start.free, jnp.asarray(1), jnp.asarray(1),
+                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True))
         gauss = own_starts(prep_g, OWN_STARTS["gaussian"], False, True)
         scout = own_starts(prep_g, N_STARTS, False, True, n_final=0)
         plan = jax.tree.map(lambda a, b: jnp.where(window == 1, a, b), gauss, scout)
