@@ -51,7 +51,7 @@ import numpy as np
 
 from .core import (HERTZ_PER_GAUSS, ITERATIONS, N_STARTS, OWN_STARTS, STOP_TOL, DECREMENT_TOL, Errors, Located,
                    Record, Settings, Start, Summary, errors, fit_status, no_start, prepare, settled_physics,
-                   statistics, texture_sections)
+                   statistics, summary_at)
 from .data import JointData
 from .forward import ANISO, INDEX, ModelSpectra
 from .residuals import residuals_and_model
@@ -542,10 +542,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     d, d_margin, d_forced = _direction_fit(st, t_index, choices, e_t.scales)
     theta, free, e = st.theta[d], st.free[d], errors_at(st, d)          # the kept fit
     jac, model = st.jac[d], jax.tree.map(lambda x: x[d], st.model)
-    located = Located(i0, b.n_leak, b.k0, b.speed0)
-    summary = Summary(theta, e.cov, e.sd, free, e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond,
-                      e.decrement, e.step_sigma, e.converged, e.settled, e.status, e.n_bins, located, e.jackknife,
-                      model, jac, texture_sections(theta, e.cov, jac, model, data_g), data_g, e.spread)
+    summary = summary_at(theta, free, e, Located(i0, b.n_leak, b.k0, b.speed0), model, jac, data_g)
     needed, rise, threshold = _window_needed(st.active[WN], st.chi2[WN], e.chi2, e.scales[_I_A])
     other_sd = st.errors.sd[jnp.maximum(others, 0)][:, _I_VVA]
     nan3 = jnp.full(3, jnp.nan, dtype)

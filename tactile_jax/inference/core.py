@@ -52,7 +52,7 @@ from ..model.spline import log_phi_at
 
 __all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "start_at",
            "candidates", "scouting", "prepare",
-           "finish", "errors", "Errors", "fit_status", "N_KNOTS", "ITERATIONS"]
+           "finish", "errors", "Errors", "fit_status", "summary_at", "N_KNOTS", "ITERATIONS"]
 
 #: integer status codes of ``Summary.status``
 STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
@@ -647,7 +647,11 @@ def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, mod
            hertz=None) -> Summary:
     """Steps 5-6 of the module at the solution ``theta`` (fitted over ``free``) with its residuals, their
     Jacobian and the model's spectra there."""
-    e = errors(record, data, free, b.i0, theta, r, jac, hertz)
+    return summary_at(theta, free, errors(record, data, free, b.i0, theta, r, jac, hertz), b, model, jac, data)
+
+
+def summary_at(theta, free, e: Errors, b: Located, model: ModelSpectra, jac, data: JointData) -> Summary:
+    """The ``Summary`` of a solution ``theta`` over ``free`` from its ``Errors``, with the texture sections."""
     return Summary(theta, e.cov, e.sd, free, e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
                    e.step_sigma, e.converged, e.settled, e.status, e.n_bins, b, e.jackknife,
                    model, jac, texture_sections(theta, e.cov, jac, model, data), data, e.spread)

@@ -16,9 +16,9 @@ import numpy as np
 from ..status import Status
 from .analysis import A_NEGLIGIBLE, DIRECTIONS, TEXTURES, WINDOWS, Analysis, summary_of
 from .core import Summary
-from .forward import ANISO, INDEX
+from .forward import INDEX
 from .result import FitResult, result_from_summary
-from .select import average_models, average_windows, lobe_of
+from .select import average_models, average_windows, lobe_of, texture_name
 
 __all__ = ["result_from_analysis", "notes_of"]
 
@@ -118,7 +118,7 @@ def result_from_analysis(a: Analysis, *, velocity=None, curvature_radius=None, m
                               window_weak=not bool(a.window_needed), segments=segments, file=file, index=index)
     notes, warnings = notes_of(a)
     res.window, res.window_margin = window, _window_margin(a)
-    res.texture = "directional" if np.asarray(s.free, bool)[[INDEX[n] for n in ANISO]].any() else "isotropic"
+    res.texture = texture_name(s.free)
     res.texture_margin = None if not np.isfinite(float(a.texture_margin)) else float(a.texture_margin)
     res.direction = DIRECTIONS[int(a.direction)]
     res.direction_margin = None if not np.isfinite(float(a.direction_margin)) else float(a.direction_margin)

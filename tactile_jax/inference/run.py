@@ -7,8 +7,8 @@ and ``batch`` run one program, ``analysis.analyse``: ``analyse_one`` on one
 record, ``analyse_many`` on a chunk (vmapped on an accelerator, record after
 record on a CPU, where ``batch`` spreads the chunks over processes);
 ``refit_analysis`` runs it from a given point with every choice held, for
-``fit``'s extras (profiles, ``model="auto"``). ``fit_one`` and ``fit_many`` run
-one window's single solve (``core.core``), for studies of that step alone.
+``fit``'s extras (profiles, ``model="auto"``). ``fit_one`` runs one window's
+single solve (``core.core``), for studies of that step alone.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from .data import JointData, Measured
 from .forward import ModelSpectra
 from ..spectral.segments import Segments, from_spectra, segments
 
-__all__ = ["record", "record_from_spectra", "analyse_one", "analyse_many", "refit_analysis", "fit_one", "fit_many",
-           "refit", "resolution_want"]
+__all__ = ["record", "record_from_spectra", "analyse_one", "analyse_many", "refit_analysis", "fit_one",
+           "resolution_want"]
 
 #: the log ratio may fall by at most this much across one bin (resolution of slow slips)
 MAX_LOG_STEP_PER_BIN = 0.15
@@ -48,10 +48,6 @@ def _locate(rec: Record, settings: Settings):
     return b.speed0, b.n_band
 
 
-def _core_many(recs: Record, settings: Settings, starts: Start) -> Summary:
-    return jax.vmap(core, in_axes=(0, None, 0))(recs, settings, starts)
-
-
 def _analyse_many(recs: Record, settings: Settings, choices: Choices, starts: Start) -> Analysis:
     return jax.vmap(_analyse, in_axes=(0, None, None, 0))(recs, settings, choices, starts)
 
@@ -59,7 +55,7 @@ def _analyse_many(recs: Record, settings: Settings, choices: Choices, starts: St
 @functools.cache
 def _programs():
     """The compiled programs, built on first use (one set per process)."""
-    return {"locate": jax.jit(_locate), "core": _single_core(), "core_many": jax.jit(_core_many),
+    return {"locate": jax.jit(_locate), "core": _single_core(),
             "analyse": _exported(_analyse, "analyse"), "analyse_many": jax.jit(_analyse_many)}
 
 
@@ -229,36 +225,6 @@ def fit_one(rec: Record, settings: Settings, start: Start | None = None) -> Summ
         start = _hertz_start(program(rec_j, settings._replace(hertz=None), _as_jnp(scouting())))
     out = program(rec_j, settings, _as_jnp(no_start() if start is None else start))
     return jax.tree.map(np.asarray, out)
-
-
-def fit_many(recs: list[Record], settings: Settings, size: int | None = None, *, vmapped: bool | None = None
-             ) -> list[Summary]:
-    """``core`` on each record: one ``Summary`` each (numpy).
-
-    vmapped: run the chunk side by side (``jax.vmap``, padded to ``size`` with copies of the first);
-    None: on an accelerator only. On a CPU the single-record program one record after another is as
-    fast (5.8 against 5.9 records/s on 2 cores, 16 records) and is the program ``fit`` compiles: a
-    vmapped one took 42 s more to compile.
-    """
-    if vmapped is None:
-        vmapped = jax.default_backend() != "cpu"
-    if not vmapped:
-        return [fit_one(r, settings) for r in recs]
-    n = len(recs)
-    size = max(size or n, n)
-    stacked = _as_jnp(_stack(recs + [recs[0]] * (size - n)))
-    program = _programs()["core_many"]
-    start = _stack([no_start()] * size)
-    if settings.hertz is not None:
-        start = _hertz_start(program(stacked, settings._replace(hertz=None), _as_jnp(_stack([scouting()] * size))))
-    out = program(stacked, settings, _as_jnp(start))
-    out = jax.tree.map(np.asarray, out)
-    return [jax.tree.map(lambda x, i=i: x[i], out) for i in range(n)]
-
-
-def refit(rec: Record, settings: Settings, theta, free) -> Summary:
-    """The same program from ``theta`` over ``free`` (what ``fit`` layers its extras on)."""
-    return fit_one(rec, settings, start_at(theta, free))
 
 
 def _unstack(tree, n: int) -> list:

@@ -2,7 +2,7 @@
 
 The models differ only in which entries of the joint model's parameter vector
 (``forward.PARAMS``) are free, so they share one compiled solve
-(``run.refit`` takes the free mask as data):
+(``run.refit_analysis`` takes the free mask as data):
 
     slip           slip velocity and texture; the window is negligible
                    (a -> infinity: a is held at ``A_NEGLIGIBLE`` and reported
@@ -52,7 +52,7 @@ __all__ = [
     "A_NEGLIGIBLE", "AXIS_FLOOR", "DETECTING", "DIRECTION_TESTED", "DIRECTIONAL_EXPLAINS", "DIRECTIONS", "MODELS",
     "TEXTURE_AVERAGED", "TEXTURES", "WINDOW_DECISIVE", "WINDOW_TEST_REL_ERR", "Candidate", "Selection", "annotate",
     "check_model", "information_criterion", "model_name", "options_for", "select", "texture_name", "lobe_of",
-    "direction_name", "average_windows", "average_models",
+    "average_windows", "average_models",
 ]
 
 MODELS = ("auto", "slip", "window", "window+gain", "window+noise", "window+gain+noise")
@@ -191,15 +191,6 @@ def lobe_of(coef) -> tuple[float, float]:
     theta = np.radians(np.arange(0.0, 180.0, 0.25))
     log_a = np.asarray(log_angular(np.cos(2 * theta), np.sin(2 * theta), np.asarray(coef, float))[0])
     return float(np.degrees(theta[np.argmax(log_a)])), float(np.exp(np.ptp(log_a)))
-
-
-def direction_name(free) -> str:
-    """The slip direction a free mask fits: "along x" where vy is held (and vx free), "along y" where vx is."""
-    free = np.asarray(free, bool)
-    vx, vy = free[_I["log_vx"]], free[_I["log_vy"]]
-    if vx == vy:
-        return "oblique"
-    return "along x" if vx else "along y"
 
 
 def average_windows(res, other, weight: float, window: str) -> None:
