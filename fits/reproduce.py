@@ -35,7 +35,7 @@ import numpy as np
 import tactile_jax as tj
 from tactile_jax.simulation import texture as textures
 from tactile_jax.errors import TactileInputError
-from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.options import FitOptions, recipe_options
 from tactile_jax.inference.fit import fit_recording
 from tactile_jax.spectral.band import leakage_only
 from tactile_jax.inference.lsq import least_squares
@@ -63,15 +63,15 @@ except ImportError:                    # pragma: no cover - older package: this 
 def load_recipe(path) -> dict:
     """Read a recipe TOML (``description``, ``[fit]``, ``[simulate]``, optional ``[sweep]``) as a dict.
 
-    Checked by ``tactile_jax.recipes.load_recipe`` when the package has it (its
-    FitOptions are kept under ``"_options"``), else by the checks below.
+    Checked by ``tactile_jax.io.recipes.load_recipe`` and ``inference.options.recipe_options`` when the
+    package has them (the FitOptions are kept under ``"_options"``), else by the checks below.
     """
     path = Path(path)
     if _recipes is not None:
         checked = _recipes.load_recipe(path)
         with open(path, "rb") as fh:
             recipe = tomllib.load(fh)
-        recipe["_options"] = checked.options
+        recipe["_options"] = recipe_options(checked.fit, checked.path)
         recipe["_path"] = str(path)
         return recipe
     try:

@@ -7,8 +7,11 @@ Where things are:
 - ``spectral``: Welch and multitaper spectra, prewhitening, the fit's fixed grid, the usable band;
 - ``inference``: the compiled joint fit (data, residuals, solver, pipeline), its options and
   results, model selection; ``uncertainty``: profile likelihood and emcee posteriors;
-- ``batch``: a dataset through the same compiled program; ``simulation``: the scene simulator;
-- ``io``: recordings, spectra, results and recipes; ``viz``: figures and the fit report;
+- ``batch``: a dataset through the same compiled program; ``track``: a slip followed over time
+  (a sliding window, one update program); ``simulation``: the scene simulator and changing slips;
+- ``contract``: the data contract both sides share (the recording, the result's fields);
+- ``io``: recordings (HDF5, NPZ, WAV/FLAC), sensor files, spectra, results and recipes; ``viz``:
+  figures and the fit report; ``studies``: comparisons that simulate and plot (compare-r);
   ``cli``: the ``tactile-jax`` commands.
 
 The library never switches on float64 globally: call
@@ -40,6 +43,7 @@ from .simulation.texture import StretchedTexture as StretchedTexture
 from .spectral.estimate import amplitude_ratio as amplitude_ratio, estimate_spectra as estimate_spectra
 from .spectral.estimate import usable_band as usable_band, whitened_psd as whitened_psd
 from .status import Status as Status
+from .track import Tracker as Tracker, track_recording as track_recording
 from .uncertainty.posterior import PosteriorResult as PosteriorResult, run_emcee as run_emcee
 from .viz.report import fit_report as fit_report
 

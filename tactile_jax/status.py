@@ -20,6 +20,10 @@ class Status(str, enum.Enum):
     POOR_FIT = "poor_fit"              # reduced chi-square above the limit: the model does not describe the spectra
     NOT_CONVERGED = "not_converged"
     UNDETERMINED = "undetermined"      # a fit that cannot determine a speed (a grating's component along its ridges)
+    # a window of a tracked recording (``track``)
+    NO_SLIP = "no_slip"                # the probes hear no texture moving: a still contact, or none
+    SLIP_START = "slip_start"          # a slip starts inside the window: its values mix the still part and the slip
+    SLIP_STOP = "slip_stop"            # a slip ends inside the window
     # no values
     NO_BAND = "no_band"                # too few usable bins
     FAILED = "failed"                  # non-finite values, or an exception inside the fit

@@ -28,7 +28,7 @@ def scene_file(tmp_path_factory):
 def test_help_gives_every_command_a_whole_first_line(runner):
     text = runner.invoke(main, ["--help"]).output
     lines = text[text.index("Commands:"):].splitlines()[1:]
-    names = {"batch", "compare-r", "demo", "fit", "simulate", "spectra"}
+    names = {"batch", "compare-r", "demo", "fit", "simulate", "spectra", "track"}
     found = {line.split()[0]: line.split(None, 1)[1] for line in lines if line.strip()}
     assert set(found) == names
     for name, first in found.items():

@@ -7,6 +7,7 @@ from click.testing import CliRunner
 
 from tactile_jax.inference import compare_r as cr
 from tactile_jax.inference.pair_fit import fit_pair
+from tactile_jax.studies import compare_r as study
 
 D1, D2 = 0.265e-3, 0.925e-3
 _plane = jax.jit(cr.rough_error_plane)
@@ -77,6 +78,26 @@ def test_synthetic_ratio_band_and_errors():
     assert 0.6 < np.std(z) < 1.5
 
 
+def test_fit_bias_data_makers(monkeypatch):
+    """The study's "simulator" source reaches ``simulator_ratio`` with the truth as its window; the analysis's
+    ``fit_bias`` knows only "synthetic" or a data maker (it imports no simulator)."""
+    seen = []
+
+    class Made(Exception):
+        pass
+
+    def fake(speed, a, *, window, seed, **kw):
+        seen.append((speed, a, window, seed, kw))
+        raise Made
+
+    monkeypatch.setattr(study, "simulator_ratio", fake)
+    with pytest.raises(Made):
+        study.fit_bias([2.2e-3], [0.047], seeds=(5,), source="simulator", truth="hertz", duration=2.0)
+    assert seen == [(0.047, 2.2e-3, "hertz", 5, {"duration": 2.0})]
+    with pytest.raises(ValueError, match="simulator"):
+        cr.fit_bias([2.2e-3], [0.047], source="simulator")
+
+
 @pytest.mark.slow
 def test_hertz_pair_residuals_see_the_hertz_truth():
     """The Hertz curve variant of the pair fit: unit-size residuals at the truth, large ones 10 % off."""
@@ -105,7 +126,7 @@ def test_compare_r_cli_quick(tmp_path, monkeypatch, bias_rows):
         calls.append(kw.get("source", "synthetic"))
         return bias_rows
 
-    monkeypatch.setattr(cr, "fit_bias", small)
+    monkeypatch.setattr(study, "fit_bias", small)
     res = CliRunner().invoke(main, ["compare-r", "--out", str(tmp_path), "--seeds", "1", "--no-simulate",
                                     "--no-hertz"])
     assert res.exit_code == 0, res.output

@@ -15,7 +15,7 @@ def _main(name):
 
 def test_every_example_has_a_test():
     tested = {"simulate_and_measure.py", "fit_spectra_with_errors.py", "rough_vs_exact.py", "posterior_corner.py",
-              "batch_folder.py"}
+              "batch_folder.py", "track_stream.py"}
     assert {p.name for p in EXAMPLES.glob("*.py")} <= tested
 
 
@@ -72,3 +72,15 @@ def test_batch_folder(tmp_path):
     assert all(r["status"] == "ok" for r in good)
     for r in good:
         assert r["vx"] == pytest.approx(0.03 if Path(str(r["file"])).name == "run_00.h5" else 0.045, rel=0.1)
+
+
+@pytest.mark.slow
+def test_track_stream():
+    from tactile_jax.simulation.path import truth_at
+
+    rows, truth = _main("track_stream.py")(block=0.07, still=1.5, along_x=3.0, oblique=3.0)
+    assert rows[0]["status"] == "no_slip" and rows[0]["vx"] is None
+    inside = [(r, truth_at(truth, r["t"] - 1.0, r["t"] + 1.0)) for r in rows]
+    ok = [(r, p) for r, p in inside if p is not None and p["moving"] and r["status"] == "ok"]
+    assert len(ok) >= 10
+    assert np.median([abs(r["vx"] - abs(p["vx"])) / np.hypot(p["vx"], p["vy"]) for r, p in ok]) < 0.05

@@ -247,7 +247,7 @@ def test_figures_without_matplotlib(no_module, monkeypatch, tmp_path):
     plotting = importlib.import_module("tactile_jax.viz.figures")
     with pytest.raises(MissingExtra, match=r'plotting needs matplotlib: pip install "tactile_jax\[plot\]"'):
         plotting.pyplot()
-    from tactile_jax.inference.compare_r import write_figures
+    from tactile_jax.studies.compare_r import write_figures
 
     with pytest.raises(MissingExtra, match=r"tactile_jax\[plot\]"):
         write_figures(tmp_path)

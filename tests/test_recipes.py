@@ -8,11 +8,16 @@ from click.testing import CliRunner
 from tactile_jax.cli import fit as cli
 from tactile_jax.cli import main
 from tactile_jax.errors import TactileInputError
-from tactile_jax.inference.options import FitOptions
+from tactile_jax.inference.options import FitOptions, recipe_options
 from tactile_jax.inference.select import MODELS
-from tactile_jax.io.recipes import list_recipes, load_recipe, recipe_options, scene_from_recipe
+from tactile_jax.io.recipes import list_recipes, load_recipe, scene_from_recipe
 
 FITS = Path(__file__).resolve().parents[1] / "fits"
+
+
+def options_of(recipe):
+    """A recipe's FitOptions: the file layer reads the [fit] table as a dict, the analysis checks it."""
+    return recipe_options(recipe.fit, recipe.path)
 
 
 def test_every_shipped_recipe_loads_and_names_a_known_model():
@@ -20,9 +25,11 @@ def test_every_shipped_recipe_loads_and_names_a_known_model():
     names = {r.name for r in recipes}
     assert {"default", "auto", "large_contact", "uncalibrated_gains", "noisy", "slow_slip", "hertz_window"} <= names
     for r in recipes:
-        assert isinstance(r.options, FitOptions)
-        assert r.options.model is None or r.options.model in MODELS
-        assert r.options.window in (None, "gaussian", "hertz")
+        assert isinstance(r.fit, dict)
+        opts = options_of(r)
+        assert isinstance(opts, FitOptions)
+        assert opts.model is None or opts.model in MODELS
+        assert opts.window in (None, "gaussian", "hertz")
         assert r.description
         if r.simulate is not None:
             scene = scene_from_recipe(r)
@@ -30,10 +37,10 @@ def test_every_shipped_recipe_loads_and_names_a_known_model():
 
 
 def test_recipe_values_reach_fit_options():
-    r = load_recipe(FITS / "slow_slip.toml")
-    assert (r.options.nperseg, r.options.fmax, r.options.model) == (2048, 100.0, "auto")
+    r = options_of(load_recipe(FITS / "slow_slip.toml"))
+    assert (r.nperseg, r.fmax, r.model) == (2048, 100.0, "auto")
     r = load_recipe(FITS / "large_contact.toml")
-    assert r.options.model == "slip" and r.simulate is None
+    assert options_of(r).model == "slip" and r.simulate is None
     opts = recipe_options({"velocity": [-0.047, 0.0], "gain_ratio": [1.1, 0.9], "prewhiten": 0})
     assert opts.velocity == (0.047, 0.0) and opts.gain_ratio == (1.1, 0.9) and opts.prewhiten is None
 
@@ -45,6 +52,7 @@ def test_recipe_values_reach_fit_options():
     ('[fit]\nmethod = 3\n', ["bad.toml", "method"]),
     ('[fit]\nvelocity = 0.04\n', ["bad.toml", "velocity"]),
     ('[fit]\nnperseg = -4\n', ["bad.toml", "nperseg"]),
+    ('fit = 3\n', ["bad.toml", "[fit]", "table"]),
     ('[simulate]\nspeed = 1\n', ["bad.toml", "speed"]),
     ('[fit\n', ["bad.toml", "TOML"]),
 ])
@@ -52,7 +60,7 @@ def test_bad_recipes_are_one_line_errors_naming_file_and_key(tmp_path, text, wor
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(TactileInputError) as info:
-        load_recipe(path)
+        options_of(load_recipe(path))
     msg = str(info.value)
     assert "\n" not in msg
     for w in words:

@@ -78,6 +78,8 @@ class _FileInfo:
     curvature_radius: float | None = None
     velocity: tuple | None = None
     gain_ratio: object = None
+    sensor: str | None = None             # ``Recording.sensor``: where the depths and radius come from
+    spec: object = None                   # the batch's ``SensorSpec`` (an audio file's channel map), or None
     error: TactileInputError | None = None
 
 
@@ -91,7 +93,7 @@ def _walk(inputs, out: Path | None = None) -> tuple[list[str], dict[str, str]]:
     starting with ".", such as the results' own temporary files) and ``out`` itself; a folder that
     holds no recording at all is an error.
     """
-    from ..io.files import RECORDING_SUFFIXES, is_recording_file
+    from ..io.files import AUDIO_SUFFIXES, RECORDING_SUFFIXES, STORE_SUFFIXES, is_recording_file
 
     files, not_recordings = [], {}
     if isinstance(inputs, (str, os.PathLike)):
@@ -114,12 +116,14 @@ def _walk(inputs, out: Path | None = None) -> tuple[list[str], dict[str, str]]:
                     found += 1
                 else:
                     suffix = Path(name).suffix.lower()
-                    not_recordings[q] = (f"not a recording: no 'signals' in this {suffix} file, or unreadable"
+                    not_recordings[q] = (f"not a recording: not a readable {suffix} audio file"
+                                         if suffix in AUDIO_SUFFIXES else
+                                         f"not a recording: no 'signals' in this {suffix} file, or unreadable"
                                          if suffix in RECORDING_SUFFIXES else
                                          f"not a recording file type ({suffix or 'no suffix'}; "
                                          f"recordings are {', '.join(RECORDING_SUFFIXES)})")
         if not found:
-            raise TactileInputError(f"no recording files ({', '.join(RECORDING_SUFFIXES)} with 'signals') in "
+            raise TactileInputError(f"no recording files ({', '.join(STORE_SUFFIXES)} with 'signals') in "
                                     "this folder or below", source=str(p), code="bad_setting")
     seen, unique = set(), []
     for f in files:
@@ -129,14 +133,18 @@ def _walk(inputs, out: Path | None = None) -> tuple[list[str], dict[str, str]]:
     return unique, not_recordings
 
 
-def _scan(path: str) -> _FileInfo:
-    """Read a recording file's metadata and the shape of ``signals`` without reading the samples."""
+def _scan(path: str, spec=None) -> _FileInfo:
+    """Read a recording file's metadata and the shape of ``signals`` without reading the samples.
+
+    spec: the batch's ``SensorSpec`` or None (``io.files.read_recording``). A FLAC file without
+    soundfile installed ends the batch (``MissingExtra``) before anything is fitted."""
+    from .._optional import MissingExtra
     from ..io import files as tio
     from ..io.recording import Recording, validate_recording
 
-    info = _FileInfo(path)
+    info = _FileInfo(path, spec=spec)
     try:
-        shape, dtype, meta = tio.read_recording_header(path)
+        shape, dtype, meta = tio.read_recording_header(path, sensor=spec)
         info.kind = tio.file_kind(Path(path), path)
         if np.dtype(dtype).kind not in "fiu":
             raise TactileInputError("signals must be a real numeric array", source=path, code="bad_shape")
@@ -154,22 +162,30 @@ def _scan(path: str) -> _FileInfo:
         info.fs, info.depths = float(meta["fs"]), tuple(float(d) for d in meta["depths"])
         info.curvature_radius, info.velocity, info.gain_ratio = (meta["curvature_radius"], meta["velocity"],
                                                                  meta["gain_ratio"])
+        info.sensor = meta["sensor"]
     except TactileInputError as err:
         info.error = err.with_source(path)
+    except MissingExtra:
+        raise
     except Exception as exc:  # noqa: BLE001 - a file the readers did not foresee
         info.error = TactileInputError(f"cannot read file: {type(exc).__name__}: {exc}", source=path, code="unreadable")
     return info
 
 
-def scan_inputs(inputs, out: Path | None = None) -> list[_FileInfo]:
-    """Walk ``inputs`` (see ``_walk``) and scan every file; a file that is not a recording carries its error."""
+def scan_inputs(inputs, out: Path | None = None, sensor=None) -> list[_FileInfo]:
+    """Walk ``inputs`` (see ``_walk``) and scan every file; a file that is not a recording carries its error.
+
+    sensor: None, a sensor file's path or a ``SensorSpec``, for every file (``io.files.read_recording``)."""
+    from ..io.sensor_file import as_sensor
+
+    spec = as_sensor(sensor)
     files, not_recordings = _walk(inputs, out)
     infos = []
     for f in files:
         if f in not_recordings:
             infos.append(_FileInfo(f, error=TactileInputError(not_recordings[f], source=f, code="not_recording")))
         else:
-            infos.append(_scan(f))
+            infos.append(_scan(f, spec))
     return infos
 
 
@@ -180,7 +196,12 @@ _NPZ_CACHE: dict = {}
 
 
 def _read_records(info: _FileInfo, start: int, stop: int) -> np.ndarray:
-    """Records ``start:stop`` of a file as (n, 4, N); HDF5 is sliced lazily, NPZ loaded once per process."""
+    """Records ``start:stop`` of a file as (n, 4, N); HDF5 is sliced lazily, NPZ loaded once per process, an
+    audio file (one record) read whole under the batch's sensor file."""
+    if info.kind in ("wav", "flac"):
+        from ..io.files import read_recording
+
+        return read_recording(info.path, sensor=info.spec).signals[None]
     if info.kind == "hdf5":
         import h5py
 
@@ -235,6 +256,17 @@ def _check_options(out: Path, kept: list[dict], tag: str) -> None:
                 "another --out", source=str(out), code="bad_setting")
 
 
+def _check_sensors(out: Path, kept: list[dict], infos: list[_FileInfo]) -> None:
+    """Refuse to resume a row whose ``sensor`` differs from the one this run gives its file."""
+    now = {info.path: info.sensor for info in infos if info.sensor is not None}
+    for row in kept:
+        old, new = row.get("sensor"), now.get(str(row.get("file")))
+        if old not in (None, "") and new is not None and old != new:
+            raise TactileInputError(
+                f"holds rows of {row.get('file')} fitted with sensor {old!r}, this run has sensor {new!r}: rerun "
+                "with --no-resume to refit every row, or write to another --out", source=str(out), code="bad_setting")
+
+
 # --------------------------------------------------------------------------- chunks
 
 
@@ -281,6 +313,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     tag = options_tag(options)
     rows: dict[int, dict] = {}
     good, recs, metas = [], [], []
+    info_of: dict[int, _FileInfo] = {}                 # the file of each good record (its sensor)
     pos = 0
     options = options_for(options)
     settings, choices = analysis_settings(options), choices_of(options)
@@ -288,6 +321,11 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
     for info, (_, start, stop) in zip(infos_part, segments):
         try:
             block = _read_records(info, start, stop)
+        except TactileInputError as err:                   # an audio file's samples (NaN, ...): its own code
+            for k, i in enumerate(range(start, stop)):
+                rows[pos + k] = _error_row(info.path, i, err.code, str(err.with_source(info.path)), model, tag)
+            pos += stop - start
+            continue
         except Exception as exc:  # noqa: BLE001 - a file that changed or broke since the scan
             for k, i in enumerate(range(start, stop)):
                 rows[pos + k] = _error_row(info.path, i, "unreadable",
@@ -308,6 +346,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 rows[pos + k] = _error_row(info.path, i, err.code, str(err), model, tag)
                 continue
             good.append((pos + k, info.path, i))
+            info_of[pos + k] = info
             metas.append((vel, info.curvature_radius, block[k], info.fs, file_options))
         pos += stop - start
         t0 = time.perf_counter()
@@ -327,6 +366,7 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                 res = with_line_model(res, signals, fs, np.asarray(r.depths), opts, curvature_radius=radius,
                                       source=src)
                 res.precision = "float64" if jax.config.jax_enable_x64 else "float32"
+                res.sensor = info_of[p].sensor
                 rows[p] = {**res.to_record(), "options": tag}
             except Exception as exc:  # noqa: BLE001
                 text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
@@ -362,11 +402,11 @@ def _key(row: dict):
 
 def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 32, workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, resume: bool = True,
-              processes: int | None = None) -> BatchSummary:
+              processes: int | None = None, sensor=None) -> BatchSummary:
     """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
 
-    inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N)) or
-        folders (searched recursively; files that are not recordings are skipped with a note).
+    inputs: a path or paths: recording files (.h5/.hdf5/.npz, (4, N) or (n, 4, N); .wav/.flac, one
+        record each) or folders (searched recursively; files that are not recordings are skipped with a note).
     out: results file, .json / .csv / .parquet (the format follows the suffix).
     options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, chain): the
         same pipeline and model as ``fit_recording``, without its single-record extras (profile
@@ -381,9 +421,13 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         runs more than one needs the ``if __name__ == "__main__":`` guard of spawned processes.
     progress: a progress line on stderr. resume: skip rows already in ``out`` (same file and index,
         status not transient); False: start afresh (``out`` is replaced when the first chunk is done).
+    sensor: None, a sensor file's path or a ``SensorSpec`` for every file (``io.files.read_recording``):
+        an audio file's depths, radius, gains and channel map; checked against, and filling, an HDF5/NPZ
+        file's metadata. Every row's ``sensor`` says where its sensor came from; resuming rows whose
+        ``sensor`` differs from this run's is refused.
 
-    Raises ``TactileInputError`` only for bad settings (``out`` suffix, chunk size, model); bad
-    recordings become rows. ``n_failed`` counts rows whose status is not one of ``FIT_RAN``.
+    Raises ``TactileInputError`` only for bad settings (``out`` suffix, chunk size, model, sensor file);
+    bad recordings become rows. ``n_failed`` counts rows whose status is not one of ``FIT_RAN``.
     """
     from ..io.results import RESULT_SUFFIXES, write_results
 
@@ -407,8 +451,11 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         need("dask.distributed", "batch", "a Dask run (--workers, --scheduler)")    # before any file is read
     options = _hashable(options)
     tag = options_tag(options)
+    from ..io.sensor_file import as_sensor
 
-    infos = scan_inputs(inputs, out)
+    spec = as_sensor(sensor)                              # a bad sensor file ends the batch here
+
+    infos = scan_inputs(inputs, out, spec)
     t_scan = time.perf_counter() - t_start
     kept = []
     if resume:
@@ -416,6 +463,7 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         for r in kept:
             r["index"] = int(r["index"] or 0)               # CSV reads numbers back as float
         _check_options(out, kept, tag)
+        _check_sensors(out, kept, infos)
     done = {_key(r) for r in kept}
     rows = list(kept)
     n_skipped = 0

@@ -10,6 +10,7 @@ from .demo import demo
 from .fit import fit
 from .simulate import simulate
 from .spectra import spectra
+from .track import track
 
 __all__ = ["main"]
 
@@ -20,7 +21,7 @@ def main():
     """Slip velocity, contact radius and texture spectra from a vertical-sampling tactile sensor."""
 
 
-for _command in (simulate, spectra, demo, fit, batch, compare_r):
+for _command in (simulate, spectra, demo, fit, batch, track, compare_r):
     main.add_command(_command)
 
 if __name__ == "__main__":  # pragma: no cover

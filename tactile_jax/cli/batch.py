@@ -26,12 +26,18 @@ from .common import parse_floats, user_errors
               help="Texture model (default: chosen per record; line textures go to the line model).")
 @click.option("--direction", type=click.Choice(["oblique", "along-x", "along-y"]), default=None,
               help="Slip direction (default: a minor speed the data do not need is held at 0, per record).")
+@click.option("--sensor", "sensor", type=click.Path(dir_okay=False), default=None,
+              help="Sensor file (TOML): probe depths, surface radius, gains and the channel map of audio files; "
+                   "an HDF5/NPZ file's metadata must agree with it. Without it an audio file gets the paper's sensor.")
 @click.option("--no-resume", is_flag=True, help="Start afresh instead of skipping rows already in --out.")
 @click.option("--quiet", is_flag=True, help="No progress line; the summary only.")
 @user_errors
 def batch(inputs, out, processes, workers, scheduler, chunk_size, velocity, fit_gain, nperseg, window, texture, direction,
-          no_resume, quiet):
+          no_resume, quiet, sensor=None):
     """Fit slip velocity and contact radius to every record under INPUTS (files or folders).
+
+    Recordings are .h5/.hdf5/.npz files and 4-channel .wav/.flac audio files; --sensor gives the
+    sensor (depths, radius, channel map) of every one.
 
     One row per record (data-contract fields, the source file and the record index).
     Bad recordings get a row with their status; the command exits 0 once the batch is done
@@ -47,7 +53,8 @@ def batch(inputs, out, processes, workers, scheduler, chunk_size, velocity, fit_
     options = FitOptions(velocity=known, fit_gain=fit_gain, nperseg=nperseg, window=window, texture=texture,
                          direction=direction and direction.replace("-", " "))
     summary = run_batch(list(inputs), out, options=options, chunk_size=chunk_size, workers=workers,
-                        scheduler=scheduler, progress=not quiet, resume=not no_resume, processes=processes)
+                        scheduler=scheduler, progress=not quiet, resume=not no_resume, processes=processes,
+                        sensor=sensor)
     t = summary.timings
     rate = summary.n_fitted / t["total"] if t["total"] > 0 else 0.0
     click.echo(f"wrote {summary.out}: {summary.n_rows} rows ({summary.n_fitted} fitted now, {summary.n_skipped} "

@@ -26,7 +26,7 @@ def compare_r(out_dir, tol, seeds, simulate, hertz):
 
     import numpy as np
 
-    from ..inference import compare_r as cr
+    from ..studies import compare_r as cr
     from ..model.sensor import PAPER_SENSOR
 
     if not tol > 0 or seeds < 1:

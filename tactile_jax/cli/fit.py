@@ -36,6 +36,9 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
 @click.option("--quiet", is_flag=True, help="No fit reports or progress; errors and the summary only.")
 @click.option("--scene", "scene", type=click.Path(dir_okay=False), default=None,
               help="Scene recipe (fits/NAME.toml): fit options first from it, explicit flags override.")
+@click.option("--sensor", "sensor", type=click.Path(dir_okay=False), default=None,
+              help="Sensor file (TOML): probe depths, surface radius, gains and the channel map of audio files; "
+                   "an HDF5/NPZ file's metadata must agree with it. Without it an audio file gets the paper's sensor.")
 @click.option("--model", "model", default=None,
               help="Scene model: auto (chosen by BIC), slip, window (default), window+gain, window+noise, "
                    "window+gain+noise.")
@@ -54,10 +57,11 @@ _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`
 @user_errors
 def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velocity, noise_floor, method, solver,
         quiet, scene=None, model=None, window=None, texture=None, direction=None, ratio_only=False,
-        cross_pairs=None):
+        cross_pairs=None, sensor=None):
     """Fit slip velocity, contact radius and gains to recordings or spectra files; write one row per record.
 
-    FILE is a recording (.h5/.hdf5/.npz with 'signals') or a spectra file (with 'omega').
+    FILE is a recording (.h5/.hdf5/.npz with 'signals', or a 4-channel .wav/.flac audio file) or a
+    spectra file (with 'omega'). --sensor gives the sensor (depths, radius, channel map).
     Speeds are printed in cm/s and lengths in mm; the results file is in SI units.
     One bad input alone ends with 'error: <file>: <problem>' and exit status 2 (its row is
     still written); among several, its row carries the status and the others go on.
@@ -66,6 +70,7 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
 
     from ..inference.options import FitOptions
     from ..io.results import RESULT_SUFFIXES
+    from ..io.sensor_file import read_sensor
 
     out_path = None if out is None else Path(out)
     if out_path is not None and out_path.suffix.lower() not in RESULT_SUFFIXES:
@@ -96,6 +101,8 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
     if cross_pairs is not None:
         options = dataclasses.replace(options, cross_pairs=cross_pairs)
     mcmc_settings = dict(n_walkers=walkers, n_steps=steps, seed=seed, progress=not quiet) if mcmc else None
+    spec = None if sensor is None else read_sensor(sensor)             # a bad sensor file ends the run here
+    with_sensor = {} if spec is None else {"spec": spec}
 
     rows, failures = [], []
     _POSTERIOR_FILES.clear()
@@ -103,7 +110,7 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
     for n, path in enumerate(files, 1):
         if many and not quiet:
             click.echo(f"[{n}/{len(files)}] {path}", err=True)
-        for row, problem, result in _fit_file(path, options, record):
+        for row, problem, result in _fit_file(path, options, record, **with_sensor):
             if result is not None:
                 if mcmc_settings is not None:
                     _attach_mcmc(result, row, out_path, mcmc_settings)
@@ -144,27 +151,36 @@ def _scene_options(options, scene, model):
     from ..inference.select import check_model
 
     if scene is not None:
+        from ..inference.options import recipe_options
         from ..io.recipes import load_recipe
 
         ctx = click.get_current_context()
         explicit = {name for name in ("method", "velocity", "fit_gain", "noise_floor", "solver", "window", "texture",
                                      "direction") if ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE}
-        recipe = load_recipe(scene).options
+        loaded = load_recipe(scene)
+        recipe = recipe_options(loaded.fit, loaded.path)
         options = dataclasses.replace(recipe, **{name: getattr(options, name) for name in explicit})
     if model is not None:
         options = dataclasses.replace(options, model=check_model(model))
     return options
 
 
-def _fit_file(path, options, record):
-    """Yield (row, problem or None, FitResult or None) for each record of ``path``; never raises for bad input."""
+def _fit_file(path, options, record, spec=None):
+    """Yield (row, problem or None, FitResult or None) for each record of ``path``; never raises for bad input.
+
+    spec: the ``SensorSpec`` of --sensor, or None."""
+    from pathlib import Path
+
+    from .._optional import MissingExtra
     from ..inference.fit import fit_recording, fit_spectra
-    from ..io.files import is_recording_file, read_recording, read_spectra
+    from ..io.files import AUDIO_SUFFIXES, is_recording_file, read_recording, read_spectra
+    from ..io.recording import SENSOR_FROM_FILE
 
     src = str(path)
+    sensor = None                                   # a spectra file's sensor: the file's metadata or --sensor
     try:
-        if is_recording_file(path):
-            rec = read_recording(path)
+        if Path(src).suffix.lower() in AUDIO_SUFFIXES or is_recording_file(path):
+            rec = read_recording(path, sensor=spec)
             if record is not None and record >= rec.n_records:
                 raise TactileInputError(f"--record {record} out of range: the file holds {rec.n_records} record(s)",
                                         source=src, code="bad_setting")
@@ -172,7 +188,8 @@ def _fit_file(path, options, record):
             label = (lambda i: f"{src} [record {i}]") if rec.n_records > 1 else (lambda i: src)
             fits = ((i, lambda i=i: fit_recording(rec, options, record=i)) for i in indices)
         else:
-            data = read_spectra(path)
+            data = read_spectra(path, sensor=spec)
+            sensor = SENSOR_FROM_FILE if spec is None else spec.label
             if record not in (None, 0):
                 raise TactileInputError(f"--record {record} out of range: a spectra file holds one record",
                                         source=src, code="bad_setting")
@@ -181,6 +198,9 @@ def _fit_file(path, options, record):
     except TactileInputError as err:
         err = err.with_source(src)
         yield _error_row(src, record or 0, err.code, str(err)), str(err), None
+        return
+    except MissingExtra as err:                     # a FLAC file without soundfile: the message names both
+        yield _error_row(src, record or 0, "unreadable", str(err)), str(err), None
         return
     for i, run in fits:
         try:
@@ -194,6 +214,8 @@ def _fit_file(path, options, record):
             yield _error_row(src, i, "fit_error", f"{src}: {text}"), f"{src}: {text}", None
             continue
         result.file, result.index = src, i
+        if result.sensor is None:
+            result.sensor = sensor
         problem = None if result.status in FIT_RAN else f"{label(i)}: {result.message or result.status}"
         yield result.to_record(), problem, result
 

@@ -11,13 +11,15 @@ Two questions, each answered twice (curves, then fits):
   second moment of the projected window (a_gauss = sqrt(3/5) a_hertz).
 - ``fit_bias``: what the approximation does to a fit. Log ratios made with a
   truth curve (``"exact"`` or ``"hertz"``) plus spectral-estimate noise
-  (``synthetic_ratio``), or computed by the space-domain simulator
-  (``simulator_ratio``), are fitted per pair (``pair_fit.fit_pair``) with
-  each candidate curve; the rows give median relative biases of a and of the
-  speed over seeds and the median wall time of one fit (compiled).
+  (``synthetic_ratio``), or by any data maker passed as ``source``, are fitted
+  per pair (``pair_fit.fit_pair``) with each candidate curve; the rows give
+  median relative biases of a and of the speed over seeds and the median wall
+  time of one fit (compiled).
 
 Everything is SI: alpha in rad/m, omega in rad/s, lengths in m, speeds in m/s.
-The figures (``write_figures``) import matplotlib only when called.
+This module is the comparison alone: the study around it (ratios of simulated
+recordings, ``simulator_ratio``; the figures, ``write_figures``) is
+``studies.compare_r``, which re-exports everything here.
 """
 
 from __future__ import annotations
@@ -43,10 +45,9 @@ __all__ = [
     "rough_error_plane",
     "rough_error_sensor",
     "rough_valid_alpha",
-    "simulator_ratio",
+    "RatioData",
     "synthetic_ratio",
     "window_error_plane",
-    "write_figures",
 ]
 
 #: Gaussian radius with the second moment of a Hertz window of radius 1 (a^2/3 vs a^2/5 along one axis)
@@ -192,26 +193,6 @@ def synthetic_ratio(speed, a, *, truth: str = "exact", depths=(_D1, _D2), fs: fl
     return RatioData(omega, np.where(mask, y, 0.0), np.where(mask, err, 1.0), mask, float(speed), float(a))
 
 
-def simulator_ratio(speed, a, *, window: str = "gaussian", duration: float = 8.0, snr_db: float = 50.0,
-                    seed: int = 0, prewhiten: int = 8) -> RatioData:
-    """The x pair's log amplitude ratio of a simulated recording (``scene.simulate``, slip along x).
-
-    Welch spectra after AR prewhitening and the usable band of ``spectra.usable_band``,
-    as the fit pipeline uses them.
-    """
-    from ..simulation.scene import Scene, simulate
-    from ..spectral.estimate import amplitude_ratio, estimate_spectra, usable_band, whitened_psd
-
-    rec = simulate(Scene(velocity=(speed, 0.0), contact_radius=a, window=window, duration=duration, snr_db=snr_db,
-                         seed=seed))
-    spec = estimate_spectra(np.asarray(rec.signals, float), rec.fs, method="welch", prewhiten=prewhiten)
-    ratio = amplitude_ratio(spec)
-    band = np.asarray(usable_band(ratio))[0]
-    return RatioData(np.asarray(ratio.omega), np.asarray(ratio.log_ratio[0]), np.asarray(ratio.log_ratio_err[0]),
-                     band, float(speed), float(a), spec.kernel, float(spec.bin_factor),
-                     np.asarray(whitened_psd(spec)[0]))
-
-
 def _valid_band(data: RatioData, tol: float = 0.05):
     """The bins where the rough curve is within ``tol`` of the exact one at the TRUE a and speed (an oracle)."""
     alpha_min = float(rough_valid_alpha([_D2 / data.a], tol)[0]) / data.a
@@ -237,24 +218,31 @@ def _one_fit(data: RatioData, curve: str):
 
 
 def fit_bias(a_values, speeds, *, curves=("exact", "rough"), truth: str = "exact", seeds=(0, 1, 2),
-             source: str = "synthetic", **kw) -> list[BiasRow]:
+             source="synthetic", **kw) -> list[BiasRow]:
     """Fit data made with ``truth`` by each of ``curves``; one ``BiasRow`` per (a, speed, curve).
 
     curves: "exact", "rough", "hertz" (``pair_fit`` curves) or "rough-valid": the rough
     curve on the bins where it is within 0.05 of the exact one at the true a
     and speed only (an oracle band: the best case for Eq. 26).
     a_values (m), speeds (m/s). source: "synthetic" (``synthetic_ratio``,
-    truth "exact" or "hertz") or "simulator" (``simulator_ratio``, truth
-    "gaussian" or "hertz" window). Extra keywords go to the data maker. The
-    first fit of each curve (compilation) is not timed.
+    truth "exact" or "hertz") or a data maker, called as
+    ``source(speed, a, truth=truth, seed=seed, **kw)`` and returning ``RatioData``
+    (``studies.compare_r.fit_bias`` takes "simulator" too: ``simulator_ratio``,
+    truth "gaussian" or "hertz" window). Extra keywords go to the data maker.
+    The first fit of each curve (compilation) is not timed.
     """
-    make = synthetic_ratio if source == "synthetic" else simulator_ratio
-    key = "truth" if source == "synthetic" else "window"
+    if isinstance(source, str):
+        if source != "synthetic":
+            raise ValueError(f"unknown source {source!r}; expected 'synthetic' or a data maker "
+                             "('simulator': studies.compare_r.fit_bias)")
+        make = synthetic_ratio
+    else:
+        make = source
     warmed = set()
     rows = []
     for a in a_values:
         for v in speeds:
-            datasets = [make(v, a, seed=s, **{key: truth}, **kw) for s in seeds]
+            datasets = [make(v, a, truth=truth, seed=s, **kw) for s in seeds]
             for curve in curves:
                 if curve not in warmed:
                     _one_fit(datasets[0], "rough" if curve == "rough-valid" else curve)
@@ -290,71 +278,3 @@ def format_bias_table(rows: list[BiasRow]) -> str:
                      f"{r.a_pull:>+8.1f}{100 * r.speed_bias:>+10.2f}{r.speed_pull:>+8.1f}{r.redchi:>9.3g}"
                      f"{1e3 * r.seconds:>9.1f}{r.n_ok:>4}/{r.n}")
     return "\n".join(lines)
-
-
-# --------------------------------------------------------------------------- figures (the edge)
-
-
-def write_figures(out_dir, *, tol: float = 0.05, speeds=(0.023, 0.047), fs: float = 1000.0) -> list:
-    """PNG maps of the rough-curve error (dimensionless plane, paper sensor) and of Gaussian vs Hertz."""
-    from pathlib import Path
-
-    from ..viz.figures import pyplot, save_figure
-
-    plt = pyplot()                                        # MissingExtra naming the plot extra without matplotlib
-    from matplotlib.colors import LogNorm
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    norm = LogNorm(1e-4, 10.0)
-
-    # 1. dimensionless plane
-    x = np.geomspace(1e-1, 1e3, 300)                     # alpha a
-    y = np.geomspace(1e-2, 10.0, 200)                    # d2 / a
-    err = np.asarray(rough_error_plane(x[None, :], y[:, None]))
-    fig, ax = plt.subplots(figsize=(7, 5))
-    m = ax.pcolormesh(x, y, np.clip(err, 1e-4, 10), norm=norm, shading="auto", cmap="viridis")
-    ax.contour(x, y, err, levels=[tol], colors="w", linewidths=1.5)
-    ax.plot(3 * y, y, "r--", lw=1, label="alpha a = 3 d2 / a (Eq. 26 validity scale)")
-    ax.set(xscale="log", yscale="log", xlabel="alpha a", ylabel="d2 / a", xlim=(x[0], x[-1]), ylim=(y[0], y[-1]),
-           title=f"|log R_rough - log R_exact| at d1/d2 = {_D1 / _D2:.3f}\nwhite: {tol:g} (rough valid to its right)")
-    ax.legend(loc="lower right", fontsize=8)
-    fig.colorbar(m, ax=ax)
-    paths.append(save_figure(fig, out / "rough_vs_exact_plane.png"))
-
-    # 2. the paper's sensor: alpha and a, with the alpha band of 1-fs/2 Hz at a few speeds
-    alpha = np.geomspace(10.0, 1e5, 300)
-    a = np.geomspace(0.2e-3, 20e-3, 200)
-    err = np.asarray(rough_error_sensor(alpha[None, :], a[:, None]))
-    fig, ax = plt.subplots(figsize=(7, 5))
-    m = ax.pcolormesh(alpha, 1e3 * a, np.clip(err, 1e-4, 10), norm=norm, shading="auto", cmap="viridis")
-    ax.contour(alpha, 1e3 * a, err, levels=[tol], colors="w", linewidths=1.5)
-    for i, (v, c) in enumerate(zip(speeds, ("r", "orange", "m"))):
-        lo, hi = 2 * np.pi * 2.0 / v, min(2 * np.pi * (fs / 2) / v, alpha[-1])
-        ax.axvspan(lo, hi, ymin=0.02 + 0.04 * i, ymax=0.05 + 0.04 * i, color=c, alpha=0.9,
-                   label=f"2 Hz - fs/2 at {100 * v:g} cm/s")
-        ax.axvline(2 * np.pi * 50.0 / v, color=c, ls=":", lw=1, label=f"50 Hz at {100 * v:g} cm/s")
-    for a_mark in (0.85, 2.2):
-        ax.axhline(a_mark, color="w", ls="--", lw=0.7)
-    ax.set(xscale="log", yscale="log", xlabel="alpha = omega / |v|  (rad/m)", ylabel="a (mm)",
-           xlim=(alpha[0], alpha[-1]),
-           title=f"paper sensor (d1 = {1e3 * _D1:g}, d2 = {1e3 * _D2:g} mm): |log R_rough - log R_exact|\n"
-                 f"white: {tol:g} (rough valid to its right); dashed: a = 0.85, 2.2 mm")
-    ax.legend(loc="upper right", fontsize=7)
-    fig.colorbar(m, ax=ax)
-    paths.append(save_figure(fig, out / "rough_vs_exact_sensor.png"))
-
-    # 3. Gaussian vs Hertz window (equal second moment), dimensionless
-    x = np.geomspace(1e-1, 30.0, 160)
-    y = np.geomspace(1e-2, 10.0, 80)
-    err = np.asarray(jax.jit(window_error_plane)(x[None, :], y[:, None]))
-    fig, ax = plt.subplots(figsize=(7, 5))
-    m = ax.pcolormesh(x, y, np.clip(np.nan_to_num(err, nan=10.0, posinf=10.0), 1e-4, 10), norm=norm,
-                      shading="auto", cmap="viridis")
-    ax.contour(x, y, np.nan_to_num(err, nan=10.0, posinf=10.0), levels=[tol], colors="w", linewidths=1.5)
-    ax.set(xscale="log", yscale="log", xlabel="alpha a_hertz", ylabel="d2 / a_hertz",
-           title="|log R_gauss(a) - log R_hertz(a)| (1-D texture, equal radius)\n" + f"white: {tol:g}")
-    fig.colorbar(m, ax=ax)
-    paths.append(save_figure(fig, out / "gauss_vs_hertz_plane.png"))
-    return paths

@@ -239,9 +239,11 @@ def _speed_radius(v_pair, a_pair, a_rel, have, known, velocity):
     return v0, jnp.clip(jnp.where(jnp.isfinite(a_rel).any(), a_pair[jnp.argmin(a_rel)], 2e-3), *_A_CLIP)
 
 
-def prepare(record: Record, settings: Settings, own_starts=True, both_windows: bool = False):
+def prepare(record: Record, settings: Settings, own_starts=True, both_windows: bool = False, pair_fits: bool = True):
     """Steps 1-3 of the module. own_starts: (traced) whether the program's own starts are wanted (not where a
-    start is given); the Hertz program then fits each pair with the Hertz curve for them. both_windows: the
+    start is given); the Hertz program then fits each pair with the Hertz curve for them. pair_fits: False
+    for a caller that brings its own parameters, knots and prior (``track``): the starts are then Eq. 6's
+    speeds and Eq. 26's radius, without the pairs' fits. both_windows: the
     ``Prepared`` of each window, (Gaussian, Hertz), and a function that gives the Hertz disk's own starts
     (each pair fitted with the disk's curve: call it only where they are wanted, they cost ten times the
     rest); ``settings.hertz`` holds the table, or None for the Gaussian window's alone."""
@@ -288,7 +290,12 @@ def prepare(record: Record, settings: Settings, own_starts=True, both_windows: b
                                d_omega=d_omega, data_kernel=data_kernel, resp_h=resp_h, resp_b=resp_b,
                                offsets=offsets, mask_h=mask_h, mask_c22=mask_c22, mask_xy=mask_xy,
                                mask_s11=mask_s11, dof=dof, k1=k1, k_xy=k_xy, d1=d1)
-    v0, a0 = _speed_radius(*_pair_fits(*pair_args), known, record.velocity)
+    if pair_fits:
+        v0, a0 = _speed_radius(*_pair_fits(*pair_args), known, record.velocity)
+    else:
+        have = jnp.isfinite(b.speed0) & jnp.isfinite(b.a0)
+        v0, a0 = _speed_radius(jnp.where(have, b.speed0, 0.02), jnp.where(have, b.a0, 2e-3), jnp.ones(2), have,
+                               known, record.velocity)
 
     def hertz_starts():     # each pair fitted with the Hertz curve
         return _speed_radius(*_pair_fits(*pair_args, settings.hertz), known, record.velocity)

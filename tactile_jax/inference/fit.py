@@ -21,8 +21,8 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+from ..contract import SENSOR_DEFAULT, Recording, validate_recording
 from ..errors import TactileInputError
-from ..io.recording import Recording, validate_recording
 from ..model.sensor import PAPER_SENSOR
 from ..status import Status
 from ..uncertainty.profile import add_profiles
@@ -135,7 +135,10 @@ def record_of(signals, fs, depths, options: FitOptions, *, source=None) -> Recor
 
 
 def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record: int = 0) -> FitResult:
-    """Fit one record of a recording. Raises ``TactileInputError`` for bad input."""
+    """Fit one record of a recording. Raises ``TactileInputError`` for bad input.
+
+    The result's ``sensor`` is the recording's; where that is the paper's sensor assumed for an audio
+    file (``SENSOR_DEFAULT``), a warning says so."""
     validate_recording(rec)
     one = rec.record(record)
     src = rec.source or "<recording>"
@@ -150,6 +153,11 @@ def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record:
     res = with_line_model(res, one.signals, one.fs, one.depths, options, curvature_radius=one.curvature_radius,
                           source=src)
     res.file, res.index, res.truth, res.precision = rec.source, record, dict(one.truth), precision
+    res.sensor = rec.sensor
+    if rec.sensor == SENSOR_DEFAULT:
+        d1, d2, r = (1e3 * v for v in PAPER_SENSOR)
+        res.warnings.append(f"sensor assumed: the paper's (probe depths {d1:g} and {d2:g} mm, R = {r:g} mm); "
+                            "a sensor file (--sensor) gives the sensor's own")
     return res
 
 

@@ -1,4 +1,5 @@
-"""How to fit a scene: ``FitOptions``, and the compiled pipeline's ``Settings`` made from them."""
+"""How to fit a scene: ``FitOptions``, the compiled pipeline's ``Settings`` made from them, and ``FitOptions``
+from a scene recipe's [fit] table (``recipe_options``; ``io.recipes`` reads the TOML)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,10 @@ import numpy as np
 from ..errors import TactileInputError
 from .analysis import DIRECTIONS
 from .core import Settings
+from .select import MODELS
 
 __all__ = ["FitOptions", "WINDOWS", "settings_of", "analysis_settings", "choices_of", "options_from_file",
-           "known_gains"]
+           "known_gains", "recipe_options"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,3 +150,69 @@ def known_gains(options: FitOptions) -> tuple[float, float]:
         return 1.0, 1.0
     g = np.atleast_1d(np.asarray(g, float))
     return (float(g[0]), float(g[-1]))
+
+
+# --------------------------------------------------------------------------- scene recipes' [fit] tables
+
+
+_OPTION_FIELDS = {f.name: f for f in dataclasses.fields(FitOptions)}
+_CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"),
+            "texture": ("isotropic", "directional"), "model": MODELS}
+
+
+def _bad(path, problem: str) -> TactileInputError:
+    return TactileInputError(problem, source=str(path), code="bad_setting")
+
+
+def _number(path, key, value, *, integer=False, positive=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _bad(path, f"[fit] {key} must be a number, got {value!r}")
+    if integer and int(value) != value:
+        raise _bad(path, f"[fit] {key} must be an integer, got {value!r}")
+    if positive and not value > 0:
+        raise _bad(path, f"[fit] {key} must be positive, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _option(path, key: str, value) -> Any:
+    """One [fit] entry, checked and converted to the FitOptions field's type."""
+    if key in _CHOICES:
+        if value not in _CHOICES[key]:
+            raise _bad(path, f"[fit] {key} = {value!r}: expected one of {', '.join(_CHOICES[key])}")
+        return value
+    if key in ("fit_gain", "noise_floor"):
+        if not isinstance(value, bool):
+            raise _bad(path, f"[fit] {key} must be true or false, got {value!r}")
+        return value
+    if key == "velocity":
+        if not (isinstance(value, list) and len(value) == 2):
+            raise _bad(path, f"[fit] velocity must be [vx, vy] in m/s, got {value!r}")
+        return tuple(abs(_number(path, key, v)) for v in value)
+    if key == "gain_ratio":
+        vals = value if isinstance(value, list) else [value]
+        if not 1 <= len(vals) <= 2:
+            raise _bad(path, f"[fit] gain_ratio must be g or [gx, gy], got {value!r}")
+        vals = [_number(path, key, v, positive=True) for v in vals]
+        return vals[0] if len(vals) == 1 else tuple(vals)
+    if key == "prewhiten":
+        n = _number(path, key, value, integer=True)
+        return n if n > 0 else None
+    if key == "nperseg":
+        return _number(path, key, value, integer=True, positive=True)
+    if key in ("smoothness", "max_err"):
+        return _number(path, key, value, positive=True)
+    return _number(path, key, value)          # min_snr, fmin, fmax, leakage_db
+
+
+def recipe_options(table: dict, path="<recipe>", base: FitOptions | None = None) -> FitOptions:
+    """FitOptions from a scene recipe's [fit] table (``io.recipes.Recipe.fit``: plain TOML values), on top of
+    ``base`` (default ``FitOptions()``). Unknown keys or wrong types: a one-line ``TactileInputError`` naming
+    ``path`` and the key."""
+    if not isinstance(table, dict):
+        raise _bad(path, "[fit] must be a table")
+    changes = {}
+    for key, value in table.items():
+        if key not in _OPTION_FIELDS:
+            raise _bad(path, f"unknown key [fit] {key!r}; expected one of {', '.join(_OPTION_FIELDS)}")
+        changes[key] = _option(path, key, value)
+    return dataclasses.replace(base or FitOptions(), **changes)

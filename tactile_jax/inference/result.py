@@ -14,6 +14,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..contract import RESULT_FIELDS as RESULT_FIELDS   # the data contract's fields; re-exported here
 from ..model.sensor import PAPER_SENSOR
 from ..spectral.diagnose import no_band_reason
 from ..status import FIT_CODES, Status
@@ -24,10 +25,6 @@ from .problem import FitProblem
 __all__ = ["Estimate", "FitResult", "TextureSection", "QUANTITIES", "RESULT_FIELDS", "result_from_summary",
            "set_contact_depth", "update_contact_depth", "plain", "model_curves", "A_BOUNDS", "V_BOUNDS", "OWN_SCALE_PARAMS"]
 
-#: the data contract's result fields, in order; ``FitResult.to_record`` adds more after them
-RESULT_FIELDS = ("file", "index", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "contact_depth",
-                 "contact_depth_err", "gain_ratio", "gain_ratio_err", "k0x", "k0y", "model", "window",
-                 "converged", "status", "message")
 #: the reported quantities (SI units: m/s, m/s, m, m, ratio, ratio; a line texture's speed along its
 #: lines' normal, m/s, and that normal's angle to the x axis, degrees in [0, 90])
 QUANTITIES = ("vx", "vy", "a", "contact_depth", "gain_ratio", "gain_ratio_y", "v_normal", "normal_angle")
@@ -107,6 +104,8 @@ class FitResult:
     own jackknife ratio), ``error_scale`` that of every other parameter's (the three
     pooled; the MCMC's likelihood temperature), ``error_method`` how they were found.
     ``cross_pairs``: how many blocks of the y pair's chain on the x pair the fit used.
+    ``sensor``: where the sensor's depths and radius came from (``contract.Recording.sensor``:
+    ``"file"``, a sensor file's path, ``"paper (default)"``), None where not known.
     ``converged``: the last solve's Gauss-Newton decrement is negligible, or a full
     Gauss-Newton step would move every physical parameter by less than
     ``core.STEP_TOL`` sigma. ``status``: a ``status.Status``.
@@ -138,6 +137,7 @@ class FitResult:
     bic: float | None = None
     solver: str = "optimistix"
     precision: str = "float64"
+    sensor: str | None = None
     names: tuple = ()
     error_scale: float | None = None
     error_scales: dict = dataclasses.field(default_factory=dict)
@@ -185,8 +185,8 @@ class FitResult:
                                                             else f"{quantity}_{field}")
                 row[column] = plain(getattr(self.estimates[quantity], field))
         for extra in ("window_margin", "texture", "texture_margin", "direction", "direction_margin", "redchi", "n_bins",
-                      "cond", "aic", "bic", "solver", "precision", "model_margin", "error_scale", "error_method",
-                      "cross_pairs"):
+                      "cond", "aic", "bic", "solver", "precision", "sensor", "model_margin", "error_scale",
+                      "error_method", "cross_pairs"):
             row[extra] = plain(getattr(self, extra))
         if self.posterior is not None:
             row.update(self.posterior_record())

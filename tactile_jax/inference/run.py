@@ -72,7 +72,7 @@ def _source_key() -> str:
     root = Path(__file__).resolve().parent.parent
     h = hashlib.sha1(f"{jax.__version__} {jax.config.jax_enable_x64}".encode())
     # every module the core can import: the physics, the spectra and the inference
-    paths = [p for sub in ("model", "spectral", "inference") for p in (root / sub).glob("*.py")]
+    paths = [p for sub in ("model", "spectral", "inference", "track") for p in (root / sub).glob("*.py")]
     for path in sorted(paths + [root / "_numerics.py", root / "_quadrature.py", root / "status.py"]):
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
@@ -83,7 +83,7 @@ def _single_core():
     return _exported(core, "core")
 
 
-def _exported(fn, name: str):
+def _exported(fn, name: str, types=()):
     """``fn`` jit-compiled; where a persistent compilation cache is set (the CLI sets one), its traced program is
     also kept there with ``jax.export``, so that a later process deserialises it instead of tracing ``fn`` again
     and finds its compiled form in the cache."""
@@ -97,7 +97,7 @@ def _exported(fn, name: str):
         from jax import export
     except ImportError:                 # pragma: no cover - jax.export's serialisation needs flatbuffers
         return jitted
-    for t in _TYPES:
+    for t in _TYPES + tuple(types):
         try:
             export.register_namedtuple_serialization(t, serialized_name=f"tactile_jax.{t.__name__}")
         except ValueError:              # registered already

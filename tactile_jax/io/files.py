@@ -1,6 +1,10 @@
-"""Recording and spectra files of the data contract: HDF5 (``.h5``, ``.hdf5``) and NumPy (``.npz``).
+"""Recording and spectra files of the data contract: HDF5 (``.h5``, ``.hdf5``) and NumPy (``.npz``),
+and audio recordings (``.wav``, ``.flac``: ``io.audio``).
 
-The format is chosen by suffix. Readers validate what they read and turn every
+The format is chosen by suffix. ``read_recording(path, sensor=None)`` reads any recording,
+with an optional sensor file (``io.sensor_file``): the depths, surface radius, gains and
+channel map of an audio file, checked against an HDF5/NPZ file's metadata and filling
+what it leaves out. Readers validate what they read and turn every
 failure (missing file, not HDF5/NPZ, missing key, wrong shape, NaN, ...) into a
 one-line :class:`~tactile_jax.errors.TactileInputError` that names the file and
 carries a ``code``. Writers are atomic: they write a temporary file in the
@@ -35,10 +39,14 @@ import numpy as np
 
 from .atomic import atomic_write
 from ..errors import TactileInputError
-from .recording import Recording, validate_recording
+from .audio import AUDIO_SUFFIXES, is_audio_file, read_audio, read_audio_header
+from .recording import SENSOR_FROM_FILE, Recording, validate_recording
+from .sensor_file import SensorSpec, as_sensor, merge_metadata
 
 __all__ = [
     "RECORDING_SUFFIXES",
+    "STORE_SUFFIXES",
+    "AUDIO_SUFFIXES",
     "SpectraData",
     "read_recording_header",
     "is_recording_file",
@@ -48,10 +56,13 @@ __all__ = [
     "write_spectra",
 ]
 
-#: File suffixes accepted for recordings and spectra (case-insensitive).
-RECORDING_SUFFIXES = (".h5", ".hdf5", ".npz")
+#: Suffixes of HDF5 and NPZ files: recordings with 'signals' and spectra files (case-insensitive).
+STORE_SUFFIXES = (".h5", ".hdf5", ".npz")
+#: File suffixes accepted for recordings (case-insensitive).
+RECORDING_SUFFIXES = STORE_SUFFIXES + AUDIO_SUFFIXES
 
-_KIND = {".h5": "hdf5", ".hdf5": "hdf5", ".npz": "npz"}
+_KIND = {".h5": "hdf5", ".hdf5": "hdf5", ".npz": "npz", ".wav": "wav", ".flac": "flac"}
+_AUDIO_KINDS = ("wav", "flac")
 _RECORDING_KEYS = ("signals", "fs", "depths")
 # HDF5 attributes live in the object header (64 KiB in all); larger strings go to a dataset.
 _MAX_ATTR_BYTES = 32 * 1024
@@ -114,16 +125,25 @@ class SpectraData(NamedTuple):
 # --------------------------------------------------------------------------- public API
 
 
-def read_recording(path) -> Recording:
-    """Read and validate a recording file (``.h5``, ``.hdf5`` or ``.npz``).
+def read_recording(path, sensor=None) -> Recording:
+    """Read and validate a recording file (``.h5``, ``.hdf5``, ``.npz``, ``.wav`` or ``.flac``).
 
-    Keys: ``signals`` (4, N) or (n, 4, N), float32/float64 kept as stored; ``fs`` (Hz);
+    HDF5/NPZ keys: ``signals`` (4, N) or (n, 4, N), float32/float64 kept as stored; ``fs`` (Hz);
     ``depths`` [d1, d2] (m); optional ``curvature_radius`` (m), ``velocity`` [vx, vy] (m/s),
     ``gain_ratio`` (scalar or per pair), ``truth`` (JSON string, decoded to a dict).
-    Raises ``TactileInputError`` (source = ``str(path)``) on any failure.
+    WAV/FLAC: one (4, N) float64 record (``io.audio.read_audio``).
+    sensor: None, a sensor file's path or a ``SensorSpec``. An audio file takes its depths, radius,
+    gains and channel map from it (without one: the paper's sensor, channels x1, x2, y1, y2); an
+    HDF5/NPZ file's metadata must agree with it (code ``bad_setting`` naming what differs), and
+    what the file leaves out (``depths`` too) is taken from it. ``Recording.sensor`` says where the
+    sensor came from. Raises ``TactileInputError`` (source = ``str(path)``, or the sensor file's
+    path for a bad sensor file) on any failure.
     """
     path, src = _as_path(path)
-    rec = _read(path, src, _recording_from_store)
+    spec = as_sensor(sensor)
+    if file_kind(path, src) in _AUDIO_KINDS:
+        return read_audio(path, spec)
+    rec = _read(path, src, lambda store, s: _recording_from_store(store, s, spec))
     return validate_recording(rec)
 
 
@@ -135,7 +155,8 @@ def write_recording(path, rec: Recording) -> Path:
     file cannot be written; an existing file at ``path`` is left untouched on failure.
     """
     path, src = _as_path(path)
-    kind = file_kind(path, src)
+    kind = _store_kind(path, src, "write_recording writes HDF5 or NPZ; a WAV file holds no metadata: "
+                                  "write it with io.audio.write_wav")
     if not isinstance(rec, Recording):
         raise TypeError(f"write_recording expects a Recording, got {type(rec).__name__}")
     vsrc = rec.source or src
@@ -151,7 +172,7 @@ def write_recording(path, rec: Recording) -> Path:
     return _atomic_write(path, kind, arrays, attrs)
 
 
-def read_spectra(path) -> SpectraData:
+def read_spectra(path, sensor=None) -> SpectraData:
     """Read and validate a spectra file (``.h5``, ``.hdf5`` or ``.npz``).
 
     Keys: ``omega`` (M,) rad/s; ``psd`` (4, M) with optional complex ``csd`` (2, M), ``xy`` (4, M),
@@ -160,10 +181,17 @@ def read_spectra(path) -> SpectraData:
     ``ratio_err`` (2, M, standard error of log ratio); ``depths`` [d1, d2] (m); optional
     ``curvature_radius`` (m), ``velocity`` (m/s), ``gain_ratio``; optional estimator
     description ``kernel`` (2, J), ``bin_factor``, ``whitening`` (2, p + 1), ``fs`` (Hz).
+    sensor: None, a sensor file's path or a ``SensorSpec``, whose depths, curvature radius and gain
+    ratio must agree with the file's (code ``bad_setting``) and fill the optional ones it leaves out.
     Raises ``TactileInputError`` (source = ``str(path)``) on any failure.
     """
     path, src = _as_path(path)
-    return _read(path, src, lambda store, s: _spectra_checked(store.get, s))
+    spec = as_sensor(sensor)
+    data = _read(path, src, lambda store, s: _spectra_checked(store.get, s))
+    if spec is None:
+        return data
+    keys = ("depths", "curvature_radius", "gain_ratio")
+    return data._replace(**merge_metadata({k: getattr(data, k) for k in keys}, spec, src))
 
 
 def write_spectra(path, data: SpectraData) -> Path:
@@ -173,7 +201,7 @@ def write_spectra(path, data: SpectraData) -> Path:
     invalid spectra or suffix, ``OSError`` if the file cannot be written.
     """
     path, src = _as_path(path)
-    kind = file_kind(path, src)
+    kind = _store_kind(path, src, "spectra files are HDF5 or NPZ")
     vsrc = getattr(data, "source", None) or src
     checked = _spectra_checked(lambda k: getattr(data, k, None), vsrc)
     arrays = {k: getattr(checked, k) for k in ("omega", "psd", "csd", "xy", "group_count", "group_psd", "group_csd",
@@ -188,7 +216,8 @@ def write_spectra(path, data: SpectraData) -> Path:
 
 
 def is_recording_file(path) -> bool:
-    """True if ``path`` has a recording suffix and holds a ``signals`` key; never raises.
+    """True if ``path`` has a recording suffix and holds a ``signals`` key (an audio file: starts as a WAV or
+    FLAC file does); never raises.
 
     Cheap: opens the file but reads no data. Meant for scanning folders.
     """
@@ -197,6 +226,8 @@ def is_recording_file(path) -> bool:
         kind = _KIND.get(p.suffix.lower())
         if kind is None or not p.is_file():
             return False
+        if kind in _AUDIO_KINDS:
+            return is_audio_file(p)
         if kind == "hdf5":
             if not h5py.is_hdf5(p):
                 return False
@@ -285,7 +316,7 @@ class _NpzStore:
 
 def _read(path: Path, src: str, parse: Callable):
     """Open ``path`` as a store and ``parse(store, src)``; any failure becomes a TactileInputError."""
-    kind = file_kind(path, src)
+    kind = _store_kind(path, src, "an audio file holds a recording, not spectra: read it with read_recording")
     if not path.exists():
         raise TactileInputError("file not found", source=src, code="unreadable")
     if not path.is_file():
@@ -319,38 +350,49 @@ def _read(path: Path, src: str, parse: Callable):
         raise TactileInputError(f"cannot read file: {_brief(exc)}", source=src, code="unreadable") from None
 
 
-def _recording_from_store(store, src: str) -> Recording:
-    meta = _recording_meta(store, src, "use read_spectra")
+def _recording_from_store(store, src: str, spec: SensorSpec | None = None) -> Recording:
+    meta = _recording_meta(store, src, "use read_spectra", spec)
     signals = _native(np.asarray(store.get("signals")))
     return Recording(signals=signals, truth=_decode_truth(store.get("truth"), src), source=src, **meta)
 
 
-def _recording_meta(store, src: str, spectra_hint: str) -> dict[str, Any]:
-    """Check the recording keys; return fs, depths and the optional fields (the samples are not read)."""
+def _recording_meta(store, src: str, spectra_hint: str, spec: SensorSpec | None = None) -> dict[str, Any]:
+    """Check the recording keys; return fs, depths, the optional fields and ``sensor`` (the samples are not
+    read). With a sensor file the depths may be absent: ``merge_metadata`` checks and fills them."""
     keys = store.keys()
     for key in _RECORDING_KEYS:
-        if key not in keys:
+        if key not in keys and not (key == "depths" and spec is not None):
             hint = f" (this looks like a spectra file: {spectra_hint})" if "omega" in keys else ""
             raise TactileInputError(
                 f"missing key '{key}'; a recording needs 'signals', 'fs' and 'depths'{hint}",
                 source=src, code="missing_key")
-    meta = {"fs": _real_scalar(store.get("fs"), "fs", src, "bad_fs"), "depths": _depth_pair(store.get("depths"), src)}
+    depths = store.get("depths")
+    meta = {"fs": _real_scalar(store.get("fs"), "fs", src, "bad_fs"),
+            "depths": None if depths is None else _depth_pair(depths, src)}
     meta.update(_optional_values(store.get, src))
+    if spec is not None:
+        meta = merge_metadata(meta, spec, src)
+    meta["sensor"] = SENSOR_FROM_FILE if spec is None else spec.label
     return meta
 
 
-def read_recording_header(path) -> tuple[tuple[int, ...], np.dtype, dict[str, Any]]:
+def read_recording_header(path, sensor=None) -> tuple[tuple[int, ...], np.dtype, dict[str, Any]]:
     """The shape and dtype of a recording's ``signals`` and its metadata, without reading the samples.
 
-    Returns ``(shape, dtype, meta)`` with ``meta`` holding ``fs`` (Hz), ``depths`` (m) and the
-    optional ``curvature_radius``, ``velocity``, ``gain_ratio`` (None when absent). Raises
-    ``TactileInputError`` as ``read_recording`` does for unreadable files and missing keys;
-    the shape and values are not validated here (see ``recording.validate_recording``).
+    Returns ``(shape, dtype, meta)`` with ``meta`` holding ``fs`` (Hz), ``depths`` (m), the
+    optional ``curvature_radius``, ``velocity``, ``gain_ratio`` (None when absent) and ``sensor``
+    (``Recording.sensor``). ``sensor`` as in ``read_recording``; an audio file's shape is that of
+    its signals as read, (4, N) float64. Raises ``TactileInputError`` as ``read_recording`` does
+    for unreadable files and missing keys; the shape and values are not validated here (see
+    ``recording.validate_recording``).
     """
     path, src = _as_path(path)
+    spec = as_sensor(sensor)
+    if file_kind(path, src) in _AUDIO_KINDS:
+        return read_audio_header(path, spec)
 
     def parse(store, s):
-        meta = _recording_meta(store, s, "fit it with 'tactile-jax fit'")
+        meta = _recording_meta(store, s, "fit it with 'tactile-jax fit'", spec)
         shape, dtype = store.shape_of("signals")
         return tuple(shape), np.dtype(dtype), meta
 
@@ -684,12 +726,21 @@ def _as_path(path) -> tuple[Path, str]:
 
 
 def file_kind(path: Path, src: str) -> str:
+    """The format of ``path`` by its suffix: ``hdf5``, ``npz``, ``wav`` or ``flac``."""
     kind = _KIND.get(path.suffix.lower())
     if kind is None:
         accepted = ", ".join(RECORDING_SUFFIXES)
         got = f"'{path.suffix}'" if path.suffix else "no suffix"
         raise TactileInputError(f"unsupported file type ({got}); accepted suffixes: {accepted}", source=src,
                                 code="unreadable")
+    return kind
+
+
+def _store_kind(path: Path, src: str, audio_problem: str) -> str:
+    """``file_kind`` of an HDF5 or NPZ file; an audio suffix is refused with ``audio_problem``."""
+    kind = file_kind(path, src)
+    if kind in _AUDIO_KINDS:
+        raise TactileInputError(audio_problem, source=src, code="unreadable")
     return kind
 
 

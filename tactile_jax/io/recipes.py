@@ -1,4 +1,4 @@
-"""Scene recipes: TOML files that say how to fit a kind of scene (``fits/*.toml``).
+"""Scene recipes: TOML files that say how to fit a kind of scene (``fits/*.toml``), read into plain dicts.
 
 Schema (shared with the paper-experiment recipes)::
 
@@ -16,94 +16,41 @@ Schema (shared with the paper-experiment recipes)::
     [sweep]      # optional, free-form: read by fits/reproduce.py only
 
 SI units throughout (m, m/s, Hz). Unknown keys or wrong types are a one-line
-``TactileInputError`` naming the file and the key.
+``TactileInputError`` naming the file and the key. This module checks the file's layout
+and the [simulate] keys; the [fit] table stays a dict (``Recipe.fit``), which
+``inference.options.recipe_options(recipe.fit, recipe.path)`` checks and turns into
+``FitOptions`` (the files import no fitting).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import tomllib
 
 from ..errors import TactileInputError
-from ..inference.options import FitOptions
-from ..inference.select import MODELS
 
-__all__ = ["Recipe", "list_recipes", "load_recipe", "recipe_options", "scene_from_recipe"]
+__all__ = ["Recipe", "list_recipes", "load_recipe", "scene_from_recipe"]
 
 _TOP_KEYS = ("description", "fit", "simulate", "sweep")
 _TEXTURES = ("RandomTexture", "DirectionalTexture", "StretchedTexture", "ModeTexture", "Grating", "WireNet")
-_OPTION_FIELDS = {f.name: f for f in dataclasses.fields(FitOptions)}
-_CHOICES = {"method": ("welch", "multitaper"), "solver": ("optimistix", "jaxopt"), "window": ("gaussian", "hertz"), "texture": ("isotropic", "directional"),
-            "model": MODELS}
 
 
 class Recipe(NamedTuple):
-    """A loaded recipe: name (file stem), description, FitOptions, and the scene it reproduces (dict or None)."""
+    """A loaded recipe: name (file stem), description, the [fit] table (a dict, ``{}`` where the file has none;
+    ``inference.options.recipe_options`` makes FitOptions of it), the scene it reproduces (dict or None)."""
 
     name: str
     description: str
-    options: FitOptions
+    fit: dict
     simulate: dict | None
     path: str
 
 
 def _bad(path, problem: str) -> TactileInputError:
     return TactileInputError(problem, source=str(path), code="bad_setting")
-
-
-def _number(path, key, value, *, integer=False, positive=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _bad(path, f"[fit] {key} must be a number, got {value!r}")
-    if integer and int(value) != value:
-        raise _bad(path, f"[fit] {key} must be an integer, got {value!r}")
-    if positive and not value > 0:
-        raise _bad(path, f"[fit] {key} must be positive, got {value!r}")
-    return int(value) if integer else float(value)
-
-
-def _option(path, key: str, value) -> Any:
-    """One [fit] entry, checked and converted to the FitOptions field's type."""
-    if key in _CHOICES:
-        if value not in _CHOICES[key]:
-            raise _bad(path, f"[fit] {key} = {value!r}: expected one of {', '.join(_CHOICES[key])}")
-        return value
-    if key in ("fit_gain", "noise_floor"):
-        if not isinstance(value, bool):
-            raise _bad(path, f"[fit] {key} must be true or false, got {value!r}")
-        return value
-    if key == "velocity":
-        if not (isinstance(value, list) and len(value) == 2):
-            raise _bad(path, f"[fit] velocity must be [vx, vy] in m/s, got {value!r}")
-        return tuple(abs(_number(path, key, v)) for v in value)
-    if key == "gain_ratio":
-        vals = value if isinstance(value, list) else [value]
-        if not 1 <= len(vals) <= 2:
-            raise _bad(path, f"[fit] gain_ratio must be g or [gx, gy], got {value!r}")
-        vals = [_number(path, key, v, positive=True) for v in vals]
-        return vals[0] if len(vals) == 1 else tuple(vals)
-    if key == "prewhiten":
-        n = _number(path, key, value, integer=True)
-        return n if n > 0 else None
-    if key == "nperseg":
-        return _number(path, key, value, integer=True, positive=True)
-    if key in ("smoothness", "max_err"):
-        return _number(path, key, value, positive=True)
-    return _number(path, key, value)          # min_snr, fmin, fmax, leakage_db
-
-
-def recipe_options(table: dict, path="<recipe>", base: FitOptions | None = None) -> FitOptions:
-    """FitOptions from a recipe's [fit] table (unknown keys: ``TactileInputError``)."""
-    if not isinstance(table, dict):
-        raise _bad(path, "[fit] must be a table")
-    changes = {}
-    for key, value in table.items():
-        if key not in _OPTION_FIELDS:
-            raise _bad(path, f"unknown key [fit] {key!r}; expected one of {', '.join(_OPTION_FIELDS)}")
-        changes[key] = _option(path, key, value)
-    return dataclasses.replace(base or FitOptions(), **changes)
 
 
 def _scene_table(table, path) -> dict:
@@ -136,9 +83,11 @@ def load_recipe(path) -> Recipe:
     description = doc.get("description", "")
     if not isinstance(description, str):
         raise _bad(p, "description must be a string")
-    options = recipe_options(doc.get("fit", {}), p)
+    fit = doc.get("fit", {})
+    if not isinstance(fit, dict):
+        raise _bad(p, "[fit] must be a table")
     sim = _scene_table(doc["simulate"], p) if "simulate" in doc else None
-    return Recipe(p.stem, description, options, sim, str(p))
+    return Recipe(p.stem, description, dict(fit), sim, str(p))
 
 
 def scene_from_recipe(recipe: Recipe):

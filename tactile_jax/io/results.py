@@ -1,7 +1,7 @@
 """Result tables of ``tactile-jax fit`` / ``batch``: JSON, CSV or Parquet, one row per record.
 
 The format follows the suffix of the path. Rows are flat dicts (``FitResult.to_record()``);
-the data contract's fields (``inference.result.RESULT_FIELDS``, docs/data-format.md) come first, extra keys after
+the data contract's fields (``contract.RESULT_FIELDS``, docs/data-format.md) come first, extra keys after
 them in first-seen order. Writes are atomic: a temporary file in the target's folder is
 renamed over the target, so a failed write leaves any existing file untouched.
 """
@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from .atomic import atomic_write
+from ..contract import RESULT_FIELDS
 from ..errors import TactileInputError
 
 __all__ = ["RESULT_SUFFIXES", "read_results", "result_columns", "write_results"]
@@ -28,14 +29,16 @@ RESULT_SUFFIXES = (".json", ".csv", ".parquet")
 
 
 def _contract_fields() -> tuple[str, ...]:
-    from ..inference.result import RESULT_FIELDS  # late: keeps this module importable without JAX work
-
     return tuple(RESULT_FIELDS)
 
 
+#: columns every results file has after the data contract's fields, whether or not a row fills them
+LEADING_EXTRAS = ("sensor",)
+
+
 def result_columns(rows: list[dict]) -> list[str]:
-    """Column order: the data contract's fields, then any other keys in first-seen order."""
-    cols = list(_contract_fields())
+    """Column order: the data contract's fields, ``LEADING_EXTRAS``, then any other keys in first-seen order."""
+    cols = list(_contract_fields()) + list(LEADING_EXTRAS)
     seen = set(cols)
     for row in rows:
         for key in row:

@@ -1,0 +1,356 @@
+"""A slip followed over time: sliding-window estimates from a stream of probe samples (``Tracker``).
+
+Every ``hop`` seconds the tracker fits the last ``window`` seconds. The first
+window in which the probes hear a moving texture is analysed in full (the
+program ``fit`` runs: window, texture and direction chosen by the data); each
+later window is one update from the last one's optimum (``track.step``) under
+those choices. After ``REACQUIRE_AFTER`` updates in a row that are poor or do
+not settle, or a window with no band, the next window is analysed in full
+again: the choices held may no longer describe the slip.
+
+Before any fit, each window's segments are tested for a moving texture
+(``activity``): the shallow probes' low-frequency power against their
+own high-frequency floor. A window with no moving segment is ``no_slip`` (no
+values: a still contact is never reported as a speed fitted into noise); a
+window whose first segments are still and last ones moving is ``slip_start`` (no
+values: the full analysis waits for a window that lies inside the slip), the
+reverse ``slip_stop`` (the update's values, which mix the two).
+
+Rows hold ``t`` (the window's centre, s), ``window_s``, the columns ``fit``
+writes (vx, vx_err, vy, vy_err, a, a_err, status, message, ...) and
+``update`` ("analysis" or "step"), ``moved`` (the step in sigmas), ``compute_s``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import TactileInputError
+from ..inference import run
+from ..io.recording import SENSOR_DEFAULT, SENSOR_FROM_FILE
+from ..inference.analysis import DIRECTIONS, WINDOWS, summary_of
+from ..inference.core import Located, Summary
+from ..inference.describe import result_from_analysis
+from ..inference.forward import INDEX
+from ..inference.options import FitOptions, analysis_settings, choices_of, known_gains, settings_of
+from ..inference.result import FitResult, result_from_summary
+from ..inference.select import model_name, texture_name
+from ..model.sensor import PAPER_SENSOR
+from ..spectral.segments import AR_ORDER, segments
+from ..status import Status
+from . import step as step_mod
+
+__all__ = ["Tracker", "track_recording", "activity", "Activity", "default_nperseg", "WINDOW_S", "HOP_S", "MOVING_DB", "REACQUIRE_AFTER"]
+
+#: default window and hop, seconds
+WINDOW_S = 2.0
+HOP_S = 0.1
+#: a group of segments hears a moving texture where its shallow probes' mean power over the lowest quarter of
+#: the bins is this far (dB) above their high-frequency floor (white noise: 0 dB, scatter below 1 dB)
+MOVING_DB = 6.0
+#: updates in a row that are poor or not settled before the window is analysed in full again
+REACQUIRE_AFTER = 3
+#: time-half-bandwidth of the window's DPSS tapers (2 NW - 1 = 7 tapers: the jackknife's groups): a 2 s
+#: window resolves 2 Hz, where Welch segments that leave six groups resolve 4 Hz (Hann's main lobe)
+NW = 4.0
+#: fewest half-overlapping Welch segments in a window (the jackknife's groups; ``method="welch"``)
+MIN_SEGMENTS = 6
+_I_V = (INDEX["log_vx"], INDEX["log_vy"])
+
+
+def default_nperseg(n_window: int) -> int:
+    """The Welch segment of a window of ``n_window`` samples: the longest power of two that leaves
+    ``MIN_SEGMENTS`` half-overlapping segments (finest resolution at the jackknife's least)."""
+    n = max(int(n_window) - AR_ORDER, 16)
+    return max(16, 1 << ((2 * n // (MIN_SEGMENTS + 1)).bit_length() - 1))
+
+
+class Activity(NamedTuple):
+    """The moving-texture test of one window: moving (S,) per segment in time order, excess_db (S,) their
+    low-band power over the floor, and the verdict: "still", "moving",
+    "start" (still groups first, moving ones last) or "stop" (the reverse)."""
+
+    moving: np.ndarray
+    excess_db: np.ndarray
+    verdict: str
+
+
+def activity(window, nperseg: int) -> Activity:
+    """Which of a window's half-overlapping segments hear a moving texture (see the module): window (4, N)
+    samples, the shallow probes x1 and y1 Hann-windowed without prewhitening (a filter fitted to a loud part
+    of the window would lift a still part's low band)."""
+    x = np.asarray(window, float)[[0, 2]]
+    step = nperseg // 2
+    starts = np.arange(0, x.shape[-1] - nperseg + 1, step)
+    idx = starts[:, None] + np.arange(nperseg)[None, :]
+    seg = x[:, idx]                                                            # (2, S, nperseg)
+    seg = (seg - seg.mean(axis=-1, keepdims=True)) * np.hanning(nperseg)
+    power = np.sum(np.abs(np.fft.rfft(seg, axis=-1)) ** 2, axis=0)             # (S, nperseg // 2 + 1)
+    m = power.shape[-1]
+    low = power[:, 1:max(2, m // 4)].mean(axis=-1)
+    floor = np.median(power[:, m // 2:], axis=-1)
+    excess = 10.0 * np.log10(np.maximum(low, 1e-300) / np.maximum(floor, 1e-300))
+    moving = excess >= MOVING_DB
+    if not moving.any():
+        verdict = "still"
+    elif not moving[0] and moving[-1]:
+        verdict = "start"
+    elif moving[0] and not moving[-1]:
+        verdict = "stop"
+    else:
+        verdict = "moving"
+    return Activity(moving, excess, verdict)
+
+
+class _Mask(NamedTuple):
+    mask_xy: np.ndarray
+
+
+@functools.cache
+def _update_program():
+    # jit, not ``run._exported``: the exported call costs 10 ms more per update (measured); the persistent
+    # compilation cache keeps the compiled program, and tracing it takes seconds
+    import jax
+
+    return jax.jit(step_mod.update)
+
+
+@functools.cache
+def _state_program():
+    import jax
+
+    return jax.jit(step_mod.state_from)
+
+
+@dataclasses.dataclass
+class _Held:
+    """What the tracker holds between updates: the acquisition's choices and the state."""
+
+    state: step_mod.TrackState
+    settings: object
+    window: str
+    texture: str
+    direction: str
+    bad: int = 0
+
+
+class Tracker:
+    """Sliding-window estimates of a slip as it changes (see the module).
+
+    fs: sample rate, Hz. sensor: a ``model.sensor.Sensor`` (depths d1, d2, curvature radius), or an object with
+    ``depths`` and ``curvature_radius`` (a sensor file's); None: the paper's sensor, which every row then
+    names. window, hop: seconds (defaults ``WINDOW_S``, ``HOP_S``). options: ``FitOptions`` (gains, window,
+    known velocity). method: the window's spectral estimator, "multitaper" (DPSS tapers of time-half-bandwidth
+    ``nw`` over the whole window) or "welch" (segments of ``nperseg``, default ``default_nperseg``); the
+    moving-texture test uses ``default_nperseg``'s segments either way. t0: the time of the first
+    sample, s. source: a name for messages and the rows' ``file``.
+
+    ``push(samples)`` takes a (4, n) block of x1, x2, y1, y2 as it arrives and returns the rows that became
+    due; ``rows`` keeps them all.
+    """
+
+    def __init__(self, fs: float, sensor=None, *, window: float = WINDOW_S, hop: float = HOP_S,
+                 options: FitOptions = FitOptions(), method: str = "multitaper", nw: float = NW,
+                 nperseg: int | None = None, t0: float = 0.0, source: str | None = None):
+        src = source or "<stream>"
+        fs = float(fs)
+        if not math.isfinite(fs) or fs <= 0:
+            raise TactileInputError(f"sample rate must be positive and finite, got {fs}", source=src, code="bad_fs")
+        for name, value in (("window", window), ("hop", hop)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise TactileInputError(f"--{name} must be a positive number of seconds, got {value!r}", source=src,
+                                        code="bad_setting")
+        self.fs, self.source, self.options, self.t0 = fs, source, options, float(t0)
+        if method not in ("multitaper", "welch"):
+            raise TactileInputError(f"method must be 'multitaper' or 'welch', got {method!r}", source=src,
+                                    code="bad_setting")
+        self.method, self.nw = method, float(nw)
+        self.n_window = int(round(window * fs))
+        self.n_hop = max(1, int(round(hop * fs)))
+        if hop > window:
+            raise TactileInputError(f"--hop ({hop} s) must not exceed --window ({window} s)", source=src,
+                                    code="bad_setting")
+        self.nperseg = int(nperseg) if nperseg else default_nperseg(self.n_window)
+        if self.n_window < 2 * self.nperseg or self.nperseg < 16:
+            raise TactileInputError(f"a window of {window} s at {fs:g} Hz ({self.n_window} samples) is too short for "
+                                    f"segments of {self.nperseg} samples", source=src, code="bad_setting")
+        if sensor is None:
+            self.depths, self.curvature_radius = (PAPER_SENSOR.d1, PAPER_SENSOR.d2), PAPER_SENSOR.curvature_radius
+            self.sensor_name = SENSOR_DEFAULT
+        elif hasattr(sensor, "d1"):
+            self.depths, self.curvature_radius = (sensor.d1, sensor.d2), sensor.curvature_radius
+            self.sensor_name = "given"
+        else:
+            self.depths = tuple(float(d) for d in sensor.depths)
+            self.curvature_radius = getattr(sensor, "curvature_radius", None)
+            self.sensor_name = str(getattr(sensor, "source", None) or getattr(sensor, "path", None) or "given")
+        self.window_s, self.hop_s = self.n_window / fs, self.n_hop / fs
+        self._settings = analysis_settings(options)
+        self._choices = choices_of(options)
+        self._gains = known_gains(options)
+        self._buffer = np.zeros((4, 0))
+        self._seen = 0                      # samples pushed
+        self._next_end = self.n_window      # the next window ends at this sample
+        self._held: _Held | None = None
+        self.rows: list[dict] = []
+
+    # ------------------------------------------------------------------ the stream
+
+    def push(self, samples) -> list[dict]:
+        """Take a (4, n) block of samples (x1, x2, y1, y2); return the rows of the windows it completed."""
+        x = np.asarray(samples, float)
+        src = self.source or "<stream>"
+        if x.ndim != 2 or x.shape[0] != 4:
+            raise TactileInputError(f"a block must have shape (4, n) (x1, x2, y1, y2), got {x.shape}", source=src,
+                                    code="bad_shape")
+        if not np.all(np.isfinite(x)):
+            raise TactileInputError(f"the block at sample {self._seen} holds NaN or inf samples", source=src,
+                                    code="nonfinite")
+        self._buffer = np.concatenate([self._buffer, x], axis=1)
+        self._seen += x.shape[1]
+        out = []
+        while self._seen >= self._next_end:
+            start = self._next_end - self.n_window                      # absolute sample index
+            offset = start - (self._seen - self._buffer.shape[1])
+            window = self._buffer[:, offset:offset + self.n_window]
+            out.append(self._row(window, self.t0 + (start + 0.5 * self.n_window) / self.fs))
+            self._next_end += self.n_hop
+        keep = self._seen - (self._next_end - self.n_window)
+        if keep < self._buffer.shape[1]:
+            self._buffer = self._buffer[:, self._buffer.shape[1] - max(keep, 0):]
+        self.rows.extend(out)
+        return out
+
+    # ------------------------------------------------------------------ one window
+
+    def _record(self, window):
+        if self.method == "multitaper":
+            seg = segments(window, self.fs, method="multitaper", nw=self.nw, prewhiten=AR_ORDER, source=self.source)
+        else:
+            seg = segments(window, self.fs, nperseg=self.nperseg, prewhiten=AR_ORDER, source=self.source)
+        return run._record(seg, self.depths, self._gains, self.options.velocity)
+
+    def _row(self, window, t: float) -> dict:
+        tic = time.perf_counter()
+        rec = self._record(window)
+        act = activity(window, self.nperseg)
+        kind, moved = "none", None
+        if act.verdict == "still":
+            self._held = None
+            res = FitResult(status=Status.NO_SLIP, window=self._settings.window,
+                            message=f"no slip: the probes hear no moving texture (low band "
+                                    f"{float(np.max(act.excess_db)):.1f} dB over the noise floor at most, "
+                                    f"{MOVING_DB:g} dB needed)")
+        elif act.verdict == "start":
+            # a window that is partly still holds two scenes: the full analysis waits for one that slips throughout
+            self._held = None
+            when = t - 0.5 * self.window_s + self._quiet_until(act)
+            res = FitResult(status=Status.SLIP_START, window=self._settings.window,
+                            message=f"a slip starts inside this window, after t = {when:.2f} s: estimates follow "
+                                    "once a window lies inside the slip")
+        elif self._held is None:
+            res, kind = self._acquire(rec), "analysis"
+        else:
+            res, kind, moved = self._step(rec)
+        if act.verdict == "stop" and res.status not in (Status.NO_SLIP, Status.SLIP_START):
+            res.status = Status.SLIP_STOP
+            res.message = "; ".join(m for m in ("the slip ends inside this window: its values mix the slip and the "
+                                                "still part", res.message) if m)
+            self._held = None
+        res.sensor = self.sensor_name
+        res.curvature_radius = self.curvature_radius
+        row = res.to_record()
+        row.update(file=self.source, t=round(t, 9), window_s=self.window_s, update=kind,
+                   moved=None if moved is None or not np.isfinite(moved) else float(moved),
+                   compute_s=time.perf_counter() - tic)
+        if self.sensor_name == SENSOR_DEFAULT:
+            row["message"] = "; ".join(m for m in (row.get("message"), "the paper's sensor assumed (no sensor file)")
+                                       if m)
+        return row
+
+    def _quiet_until(self, act: Activity) -> float:
+        """Seconds from the window's start to the end of its last still segment before the first moving one."""
+        first = int(np.argmax(act.moving))
+        step = self.nperseg // 2
+        return ((first - 1) * step + self.nperseg) / self.fs if first > 0 else 0.0
+
+    def _acquire(self, rec) -> FitResult:
+        """The full analysis of one window: its choices are held by the updates that follow."""
+        a = run.analyse_one(rec, self._settings, self._choices)
+        s = summary_of(a)
+        res = result_from_analysis(a, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
+                                   model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
+        limit = float(step_mod.poor_fit_limit(float(s.n_data), float(rec.seg.bin_factor)))
+        if res.status == Status.POOR_FIT and res.redchi is not None and res.redchi <= limit:
+            res.status = Status.OK          # within the noise of the window's few independent residuals
+            res.message = "; ".join(m for m in res.message.split("; ") if not m.startswith("poor fit:"))
+        if res.status in (Status.OK, Status.POOR_FIT, Status.NOT_CONVERGED):
+            window = WINDOWS[int(a.window)]
+            settings = settings_of(self.options, window=window)
+            if window == "hertz":
+                settings = settings._replace(hertz=self._settings.hertz)
+            settings = run._as_jnp(settings)
+            state = _state_program()(run._as_jnp(rec), settings, s.theta, s.free)
+            self._held = _Held(state, settings, window, texture_name(s.free), DIRECTIONS[int(a.direction)])
+        return res
+
+    def _step(self, rec):
+        held = self._held
+        u = _update_program()(run._as_jnp(rec), held.settings, held.state, False)
+        held.state = u.state
+        e = u.errors
+        mask = np.asarray(u.state.masks[3])
+        loc = Located(u.state.i0, np.asarray(0), np.full(2, np.nan), u.speed0)
+        s = Summary(np.asarray(u.theta), *(np.asarray(x) for x in (e.cov, e.sd)), np.asarray(u.state.free),
+                    *(np.asarray(x) for x in (e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
+                                              e.step_sigma, e.converged, e.settled)),
+                    np.asarray(e.status), np.asarray(e.n_bins), loc, np.asarray(e.jackknife), None, None, None,
+                    _Mask(mask), np.asarray(e.spread))
+        moved = float(u.moved)
+        res = result_from_summary(s, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
+                                  model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
+        res.window, res.texture, res.direction = held.window, held.texture, held.direction
+        if res.status == Status.NOT_CONVERGED:           # the program's status: the step did not settle
+            notes = [m for m in res.message.split("; ") if m and not m.startswith("the solver did not converge")]
+            res.message = "; ".join([f"the update moved a parameter by {moved:.1f} sigma: not settled (the slip is "
+                                     "changing, or the choices held no longer describe it)"] + notes)
+        # poor or unsettled updates in a row: the choices held may no longer describe the slip. A steady misfit
+        # (a lumpy window) re-analysed misfits alike, yet holding the choices through it gave fewer right
+        # updates on the changing paths of benchmarks/track.py (23 of 63 against 34)
+        held.bad = 0 if res.status == Status.OK else held.bad + 1
+        if held.bad >= REACQUIRE_AFTER or res.status in (Status.NO_BAND, Status.FAILED):
+            self._held = None               # the next window is analysed in full
+        return res, "step", moved
+
+
+def track_recording(rec, *, window: float = WINDOW_S, hop: float = HOP_S, options: FitOptions = FitOptions(),
+                    method: str = "multitaper", nperseg: int | None = None, record: int = 0,
+                    progress=None) -> list[dict]:
+    """The rows of a ``Tracker`` run over one record of a recording (``io.recording.Recording``), fed a second
+    of samples at a time as a stream would feed it. progress: called with (samples done, samples in all)."""
+    from ..io.recording import validate_recording
+    from ..model.sensor import Sensor
+
+    validate_recording(rec)
+    one = rec.record(record)
+    d1, d2 = (float(d) for d in one.depths)
+    radius = one.curvature_radius if one.curvature_radius else PAPER_SENSOR.curvature_radius
+    tracker = Tracker(one.fs, Sensor(d1, d2, radius), window=window, hop=hop, options=options, method=method,
+                      nperseg=nperseg, source=one.source)
+    tracker.sensor_name = getattr(one, "sensor", None) or SENSOR_FROM_FILE
+    n = one.n_samples
+    if n < tracker.n_window:
+        raise TactileInputError(f"the recording holds {n / one.fs:.3g} s, less than one window of "
+                                f"{tracker.window_s:.3g} s", source=one.source or "<recording>", code="too_short")
+    block = max(1, int(round(one.fs)))
+    for i in range(0, n, block):
+        tracker.push(one.signals[:, i:i + block])
+        if progress is not None:
+            progress(min(i + block, n), n)
+    return tracker.rows

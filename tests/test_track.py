@@ -1,0 +1,140 @@
+"""The sliding-window tracker: the moving-texture test, the stream's bookkeeping, rows and the ``track`` command."""
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from tactile_jax.cli import main
+from tactile_jax.errors import TactileInputError
+from tactile_jax.io.files import write_recording
+from tactile_jax.simulation.path import Piece, simulate_path, truth_at
+from tactile_jax.track import Tracker, track_recording
+from tactile_jax.track.tracker import activity, default_nperseg
+
+from conftest import GAUSS
+
+FS = 1000.0
+
+
+def _texture_burst(n, rng):
+    """Four channels of a low-frequency random signal (a texture heard at a slow slip), unit power."""
+    white = rng.standard_normal((4, n + 64))
+    kernel = np.hanning(64)
+    return np.stack([np.convolve(w, kernel, mode="valid")[:n] for w in white]) / 10.0
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(3)
+
+
+def test_activity_tells_still_from_moving_and_finds_the_start(rng):
+    n, nper = 2000, default_nperseg(2000)
+    noise = 1e-3 * rng.standard_normal((4, n))
+    assert activity(noise, nper).verdict == "still"
+    moving = noise + _texture_burst(n, rng)
+    act = activity(moving, nper)
+    assert act.verdict == "moving" and act.moving.all() and act.excess_db.min() > 20
+    start = noise.copy()
+    start[:, n // 2:] += _texture_burst(n - n // 2, rng)
+    assert activity(start, nper).verdict == "start"
+    stop = noise.copy()
+    stop[:, :n // 2] += _texture_burst(n // 2, rng)
+    assert activity(stop, nper).verdict == "stop"
+
+
+def test_a_still_contact_gives_no_slip_rows_and_no_speed(rng):
+    tracker = Tracker(FS, window=1.0, hop=0.25)
+    rows = []
+    for block in np.array_split(1e-3 * rng.standard_normal((4, 3000)), 7, axis=1):
+        rows += tracker.push(block)
+    # windows end at 1.0, 1.25, ..., 3.0 s: nine of them, centred 0.5 s before their ends
+    assert [r["t"] for r in rows] == pytest.approx(np.arange(0.5, 2.51, 0.25))
+    assert {r["status"] for r in rows} == {"no_slip"}
+    assert all(r["vx"] is None and r["vy"] is None and r["a"] is None for r in rows)
+    assert all(r["sensor"] == "paper (default)" and "paper's sensor assumed" in r["message"] for r in rows)
+    assert tracker.rows == rows
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(fs=0.0), "sample rate"),
+    (dict(fs=FS, hop=3.0), "--hop"),
+    (dict(fs=FS, window=-1.0), "--window"),
+    (dict(fs=FS, window=0.02, hop=0.01), "too short"),
+    (dict(fs=FS, method="fft"), "method"),
+])
+def test_bad_settings_are_one_line_errors(kwargs, words):
+    with pytest.raises(TactileInputError, match=words) as err:
+        Tracker(**kwargs)
+    assert "\n" not in str(err.value)
+
+
+def test_bad_blocks_are_one_line_errors():
+    tracker = Tracker(FS, source="arm.h5")
+    with pytest.raises(TactileInputError, match=r"arm.h5.*shape \(4, n\)"):
+        tracker.push(np.zeros((3, 10)))
+    block = np.zeros((4, 10))
+    block[2, 5] = np.nan
+    with pytest.raises(TactileInputError, match="NaN"):
+        tracker.push(block)
+
+
+def test_track_command_on_a_still_recording_writes_its_rows(tmp_path, rng):
+    rec = _with_signals(simulate_path([Piece(3.0)], snr_db=None, seed=0), 1e-4 * rng.standard_normal((4, 3000)))
+    path = write_recording(tmp_path / "still.h5", rec)
+    out = tmp_path / "track.csv"
+    result = CliRunner().invoke(main, ["track", str(path), "--out", str(out), "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert "11 updates" in result.output and "no_slip 11" in result.output
+    text = out.read_text().splitlines()
+    header = text[0].split(",")
+    assert {"t", "window_s", "vx", "vx_err", "vy", "vy_err", "a", "a_err", "status", "message"} <= set(header)
+    assert len(text) == 12
+
+
+def test_track_command_bad_settings_exit_2(tmp_path, rng):
+    rec = _with_signals(simulate_path([Piece(3.0)], snr_db=None, seed=0), 1e-4 * rng.standard_normal((4, 3000)))
+    path = write_recording(tmp_path / "still.h5", rec)
+    result = CliRunner().invoke(main, ["track", str(path), "--hop", "5"])
+    assert result.exit_code == 2
+    assert result.output.strip().startswith("error:") and "--hop" in result.output
+    result = CliRunner().invoke(main, ["track", str(path), "--window", "10"])
+    assert result.exit_code == 2 and "less than one window" in result.output
+
+
+def _with_signals(rec, signals):
+    import dataclasses
+
+    return dataclasses.replace(rec, signals=signals)
+
+
+@pytest.mark.slow
+def test_tracking_a_slip_on_the_gaussian_program():
+    """Still, then a slide: no speed while still, then right values from the first window inside the slide;
+    the rows do not depend on how the stream is cut into blocks."""
+    rec = simulate_path([Piece(2.0), Piece(4.5, (0.04, 0.0), contact_radius=1.5e-3)], window="gaussian",
+                        snr_db=45.0, seed=2, crossfade=0.03)
+    from tactile_jax.inference.options import FitOptions
+
+    options = FitOptions(**GAUSS)
+    rows = track_recording(rec, window=2.0, hop=0.25, options=options)
+    statuses = [r["status"] for r in rows]
+    assert statuses[0] == "no_slip" and "slip_start" in statuses
+    inside = [r for r in rows if (lambda p: p is not None and p["moving"])(truth_at(rec.truth, r["t"] - 1.0,
+                                                                                      r["t"] + 1.0))]
+    assert len(inside) >= 8
+    # every window inside the slide has values, right to 1 %; many are `poor_fit` at 45 dB: each window's
+    # tapers hear the same few texture modes (a lumpy spectrum), which the smooth texture model misfits
+    assert all(r["status"] in ("ok", "poor_fit", "not_converged") for r in inside)
+    assert any(r["status"] == "ok" for r in inside)
+    for r in inside:
+        assert abs(r["vx"] - 0.04) < 0.01 * 0.04 and abs(r["a"] - 1.5e-3) < 0.02 * 1.5e-3
+    assert {r["update"] for r in inside} == {"analysis", "step"}
+    tracker = Tracker(rec.fs, window=2.0, hop=0.25, options=options)
+    again = []
+    for block in np.array_split(rec.signals, 13, axis=1):
+        again += tracker.push(block)
+    assert [r["status"] for r in again] == statuses
+    for a, b in zip(rows, again):
+        for q in ("vx", "vy", "a", "vx_err"):
+            assert (a[q] is None and b[q] is None) or a[q] == pytest.approx(b[q], rel=1e-9)
