@@ -78,7 +78,7 @@ def test_batch_folder(tmp_path):
 def test_track_stream():
     from tactile_jax.simulation.path import truth_at
 
-    rows, truth = _main("track_stream.py")(block=0.07, still=1.5, along_x=3.0, oblique=3.0)
+    rows, truth = _main("track_stream.py")(block=0.07, still=2.5, along_x=3.0, oblique=3.0)
     assert rows[0]["status"] == "no_slip" and rows[0]["vx"] is None
     inside = [(r, truth_at(truth, r["t"] - 1.0, r["t"] + 1.0)) for r in rows]
     ok = [(r, p) for r, p in inside if p is not None and p["moving"] and r["status"] == "ok"]
