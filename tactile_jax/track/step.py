@@ -154,7 +154,7 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
     e = e._replace(converged=finite & settled, settled=jnp.asarray(False),
                    status=fit_status(e.n_bins, finite, finite & settled, e.redchi * POOR_FIT_REDCHI / limit))
     new = TrackState(theta, free, state.log_knots, state.prior_center, jac, b.i0, masks,
-                     jnp.where(stale, 0, state.age + 1), moved)
+                     jnp.where(stale, 0, state.age + 1).astype(jnp.int32), moved)
     return Update(e, theta, moved, stale, taken, new, b.n_band, b.speed0)
 
 
@@ -167,4 +167,4 @@ def state_from(record: Record, settings: Settings, theta, free, jac=None) -> Tra
     p = theta.shape[0]
     return TrackState(jnp.asarray(theta), jnp.asarray(free, bool), data.log_k_knots, data.prior_center,
                       jnp.zeros(r_shape + (p,), theta.dtype) if jac is None else jac, prep.band.i0, _masks(data),
-                      jnp.asarray(0), jnp.asarray(jnp.inf, theta.dtype))
+                      jnp.zeros((), jnp.int32), jnp.full((), jnp.inf, theta.dtype))

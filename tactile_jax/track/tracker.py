@@ -302,7 +302,7 @@ class Tracker:
 
     def _step(self, rec):
         held = self._held
-        u = _update_program()(run._as_jnp(rec), held.settings, held.state, False)
+        u = _update_program()(rec, held.settings, held.state, False)
         held.state = u.state
         e = u.errors
         mask = np.asarray(u.state.masks[3])
