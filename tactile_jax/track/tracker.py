@@ -198,6 +198,7 @@ class Tracker:
         self._seen = 0                      # samples pushed
         self._next_end = self.n_window      # the next window ends at this sample
         self._held: _Held | None = None
+        self._by_window: dict = {}
         self.rows: list[dict] = []
 
     # ------------------------------------------------------------------ the stream
@@ -292,13 +293,20 @@ class Tracker:
             res.message = "; ".join(m for m in res.message.split("; ") if not m.startswith("poor fit:"))
         if res.status in (Status.OK, Status.POOR_FIT, Status.NOT_CONVERGED):
             window = WINDOWS[int(a.window)]
-            settings = settings_of(self.options, window=window)
-            if window == "hertz":
-                settings = settings._replace(hertz=self._settings.hertz)
-            settings = run._as_jnp(settings)
+            settings = self._window_settings(window)
             state = _state_program()(run._as_jnp(rec), settings, s.theta, s.free)
             self._held = _Held(state, settings, window, texture_name(s.free), DIRECTIONS[int(a.direction)])
         return res
+
+    def _window_settings(self, window: str):
+        """The update program's settings for ``window``, made once: new arrays would cost the first call after
+        each analysis 70 ms more (measured)."""
+        if window not in self._by_window:
+            settings = settings_of(self.options, window=window)
+            if window == "hertz":
+                settings = settings._replace(hertz=self._settings.hertz)
+            self._by_window[window] = run._as_jnp(settings)
+        return self._by_window[window]
 
     def _step(self, rec):
         held = self._held
