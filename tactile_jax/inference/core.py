@@ -644,10 +644,10 @@ def errors(record: Record, data: JointData, free, i0, theta, r, jac, hertz=None)
                   settled & ~(decrement < DECREMENT_TOL), status, n_bins, ran, spread)
 
 
-def fit_status(n_bins, finite, converged, redchi):
-    """The integer status (``STATUS``) of a solution."""
+def fit_status(n_bins, finite, converged, redchi, limit=POOR_FIT_REDCHI):
+    """The integer status (``STATUS``) of a solution: poor beyond the reduced chi-square ``limit``."""
     return jnp.where(n_bins < MIN_BINS, 1, jnp.where(~finite, 4, jnp.where(~converged, 2,
-                     jnp.where(redchi > POOR_FIT_REDCHI, 3, 0))))
+                     jnp.where(redchi > limit, 3, 0))))
 
 
 def finish(record: Record, data: JointData, free, b: Located, theta, r, jac, model: ModelSpectra,

@@ -63,8 +63,9 @@ class TrackState(NamedTuple):
 
     theta, free: (P,) the last optimum and the fitted parameters (the acquisition's choices held);
     log_knots: the texture knots (log rad/m); prior_center: (P,) the weak priors' centre; jac: (R, P) the
-    residuals' Jacobian kept for chord steps; i0: the fit window's first bin, masks: (4, 2, L) the blocks'
-    bins, both where ``jac`` was computed; age: chord updates since; moved: the last step in sigmas."""
+    residuals' Jacobian kept for chord steps; i0: the fit window's first bin where ``jac`` was computed;
+    mask_xy: (2, L) the bins of the x-y chain's blocks; age: chord updates since; moved: the last step in
+    sigmas."""
 
     theta: jax.Array
     free: jax.Array
@@ -72,7 +73,7 @@ class TrackState(NamedTuple):
     prior_center: jax.Array
     jac: jax.Array
     i0: jax.Array
-    masks: jax.Array
+    mask_xy: jax.Array
     age: jax.Array
     moved: jax.Array
 
@@ -103,10 +104,6 @@ def poor_fit_limit(n_data, bin_factor):
     return jnp.maximum(POOR_FIT_REDCHI, jnp.power(1.0 - c + Z_999 * jnp.sqrt(c), 3))
 
 
-def _masks(data) -> jax.Array:
-    return jnp.stack([data.mask_s11, data.mask_h, data.mask_c22, data.mask_xy])
-
-
 def update(record: Record, settings: Settings, state: TrackState, refresh=False) -> Update:
     """One update from ``state`` on ``record``'s window (see the module). Pure jnp, fixed shapes.
 
@@ -119,7 +116,6 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
     # nothing measures the y pair's level where it has no band
     i_ay = INDEX["log_ay"]
     free = state.free.at[i_ay].set(state.free[i_ay] & prep.free[i_ay])
-    masks = _masks(data)
     stale = (state.age >= REFRESH_AGE) | (state.moved > REFRESH_MOVE) | (b.i0 != state.i0)
     stale = stale | jnp.asarray(refresh)
 
@@ -152,8 +148,8 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(e.chi2)
     limit = poor_fit_limit(e.n_data, record.seg.bin_factor)
     e = e._replace(converged=finite & settled, settled=jnp.asarray(False),
-                   status=fit_status(e.n_bins, finite, finite & settled, e.redchi * POOR_FIT_REDCHI / limit))
-    new = TrackState(theta, free, state.log_knots, state.prior_center, jac, b.i0, masks,
+                   status=fit_status(e.n_bins, finite, finite & settled, e.redchi, limit))
+    new = TrackState(theta, free, state.log_knots, state.prior_center, jac, b.i0, data.mask_xy,
                      jnp.where(stale, 0, state.age + 1).astype(jnp.int32), moved)
     return Update(e, theta, moved, stale, taken, new, b.n_band, b.speed0)
 
@@ -166,5 +162,5 @@ def state_from(record: Record, settings: Settings, theta, free, jac=None) -> Tra
     r_shape = jax.eval_shape(lambda t: residuals_and_model(t, (data, settings.hertz))[0], theta).shape
     p = theta.shape[0]
     return TrackState(jnp.asarray(theta), jnp.asarray(free, bool), data.log_k_knots, data.prior_center,
-                      jnp.zeros(r_shape + (p,), theta.dtype) if jac is None else jac, prep.band.i0, _masks(data),
+                      jnp.zeros(r_shape + (p,), theta.dtype) if jac is None else jac, prep.band.i0, data.mask_xy,
                       jnp.zeros((), jnp.int32), jnp.full((), jnp.inf, theta.dtype))

@@ -36,8 +36,7 @@ from ..inference import run
 from ..io.recording import SENSOR_DEFAULT, SENSOR_FROM_FILE
 from ..inference.analysis import DIRECTIONS, WINDOWS, summary_of
 from ..inference.core import Located, Summary
-from ..inference.describe import result_from_analysis
-from ..inference.forward import INDEX
+from ..inference.fit import result_of
 from ..inference.options import FitOptions, analysis_settings, choices_of, known_gains, settings_of
 from ..inference.result import FitResult, result_from_summary
 from ..inference.select import model_name, texture_name
@@ -51,17 +50,16 @@ __all__ = ["Tracker", "track_recording", "activity", "Activity", "default_nperse
 #: default window and hop, seconds
 WINDOW_S = 2.0
 HOP_S = 0.1
-#: a group of segments hears a moving texture where its shallow probes' mean power over the lowest quarter of
-#: the bins is this far (dB) above their high-frequency floor (white noise: 0 dB, scatter below 1 dB)
+#: a segment hears a moving texture where its shallow probes' mean power over the lowest quarter of the bins
+#: is this far (dB) above their high-frequency floor (white noise: 0 dB, scatter below 1 dB)
 MOVING_DB = 6.0
 #: updates in a row that are poor or not settled before the window is analysed in full again
 REACQUIRE_AFTER = 3
-#: time-half-bandwidth of the window's DPSS tapers (2 NW - 1 = 7 tapers: the jackknife's groups): a 2 s
+#: time-half-bandwidth of the window's DPSS tapers (5 tapers: the jackknife's groups): a 2 s
 #: window resolves 2 Hz, where Welch segments that leave six groups resolve 4 Hz (Hann's main lobe)
 NW = 4.0
 #: fewest half-overlapping Welch segments in a window (the jackknife's groups; ``method="welch"``)
 MIN_SEGMENTS = 6
-_I_V = (INDEX["log_vx"], INDEX["log_vy"])
 
 
 def default_nperseg(n_window: int) -> int:
@@ -285,8 +283,7 @@ class Tracker:
         """The full analysis of one window: its choices are held by the updates that follow."""
         a = run.analyse_one(rec, self._settings, self._choices)
         s = summary_of(a)
-        res = result_from_analysis(a, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
-                                   model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
+        res = result_of(a, rec, self.options, curvature_radius=self.curvature_radius)     # fit's and batch's row
         limit = float(step_mod.poor_fit_limit(float(s.n_data), float(rec.seg.bin_factor)))
         if res.status == Status.POOR_FIT and res.redchi is not None and res.redchi <= limit:
             res.status = Status.OK          # within the noise of the window's few independent residuals
@@ -313,7 +310,7 @@ class Tracker:
         u = _update_program()(rec, held.settings, held.state, False)
         held.state = u.state
         e = u.errors
-        mask = np.asarray(u.state.masks[3])
+        mask = np.asarray(u.state.mask_xy)
         loc = Located(u.state.i0, np.asarray(0), np.full(2, np.nan), u.speed0)
         s = Summary(np.asarray(u.theta), *(np.asarray(x) for x in (e.cov, e.sd)), np.asarray(u.state.free),
                     *(np.asarray(x) for x in (e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
