@@ -351,3 +351,15 @@ def test_the_line_fit_runs_in_float64_for_a_float32_caller():
     assert res.status == "undetermined" and res.v_n is not None, res.message
     speed = float(res.message.split("share the speed |v| = ")[1].split(" ")[0]) * 1e-2
     assert speed == pytest.approx(math.hypot(*v), rel=0.01)
+
+
+@pytest.mark.parametrize("a", [0.85e-3, 2.2e-3])
+def test_a_known_velocity_along_x_gives_a_from_one_pairs_lines(a):
+    """The paper's Fig. 7: with the slip given along x, a line heard by the x pair alone has |kx| = omega / vx, so
+    its ratio gives a (the y component does not enter omega when vy is 0)."""
+    v = (0.047, 0.0)
+    res = fit_lines(_lines([[2 * np.pi / 0.5e-3, 0.0], [2 * np.pi / 1.7e-3, 0.0]], v, a, err=5e-3,
+                           hear=[[True, True], [False, False]]), (D1, D2), velocity=v)
+    assert res.status == "ok" and res.a_source == "fit"
+    assert res.a == pytest.approx(a, rel=0.01)
+    assert 0 < res.a_err < 0.05 * a

@@ -25,6 +25,9 @@ Identifiability (what the fit assumes and reports):
   where the lines do not fix it (sd of log a above ``A_DETERMINED``), marginalised:
   the speeds' errors then hold the spread over the plausible range, and a speed
   whose relative error exceeds ``MAX_REL_ERR`` is reported undetermined, with bounds.
+- With the velocity given, omega_j = |kx_j vx + t_j ky_j vy| ties each line's components
+  to the speeds; along an axis (vy = 0) it fixes |kx_j| = omega_j / vx outright, so a
+  line heard by the x pair alone fixes a by its ratio (the paper's Fig. 7).
 - A line heard by one pair only (and no cross level) gives one component; the
   other is free, so its omega says nothing about v: it is left out of the speed fit
   (reported with its |k_s|), except as a harmonic of a family.
@@ -653,6 +656,9 @@ class _Fitter:
         ky = np.where(np.isnan(ky) & sel, 1e3, ky)
         mw = sel & free_kx & free_ky
         if vk is not None:
+            # a known speed of 0 takes its component out of omega = |kx vx + t ky vy|: the line's frequency then
+            # fixes the other component, and its pair's ratio fixes a (the paper's Fig. 7: a from the known v)
+            mw = sel & (free_kx | (vk[0] == 0)) & (free_ky | (vk[1] == 0))
             starts = [vk]
         elif v_start is not None:
             starts = [v_start]
