@@ -654,11 +654,12 @@ class _Fitter:
         # a component that no level measures starts where omega puts it (known v) or at 1/mm
         kx = np.where(np.isnan(kx) & sel, 1e3, kx)
         ky = np.where(np.isnan(ky) & sel, 1e3, ky)
-        mw = sel & free_kx & free_ky
+        # omega = |kx vx + t ky vy| constrains a line where each component is fitted or drops out: a speed known
+        # to be 0 takes its component out, so the line's frequency fixes the other, and its pair's ratio then
+        # fixes a (the paper's Fig. 7: a from the known v)
+        zero = (False, False) if vk is None else (vk[0] == 0, vk[1] == 0)
+        mw = sel & (free_kx | zero[0]) & (free_ky | zero[1])
         if vk is not None:
-            # a known speed of 0 takes its component out of omega = |kx vx + t ky vy|: the line's frequency then
-            # fixes the other component, and its pair's ratio fixes a (the paper's Fig. 7: a from the known v)
-            mw = sel & (free_kx | (vk[0] == 0)) & (free_ky | (vk[1] == 0))
             starts = [vk]
         elif v_start is not None:
             starts = [v_start]
