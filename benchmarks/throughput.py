@@ -282,6 +282,135 @@ def one(name: str, size: int, args) -> dict:
                                                        "redchi", "message")}} for j in idx]}
 
 
+# --------------------------------------------------------------------------- stage profile (one process)
+
+
+def _device_memory():
+    """Peak and current bytes of the default device (None where the backend keeps no statistics, a CPU)."""
+    import jax
+
+    stats = jax.devices()[0].memory_stats() or {}
+    return {k: stats.get(k) for k in ("peak_bytes_in_use", "bytes_in_use", "bytes_limit")}
+
+
+def stages(args) -> dict:
+    """Where a batch spends its time on this process's default device (a GPU where there is one), on the
+    oblique set, in one process with a fresh persistent cache, in this order:
+
+    1. host spectra: ``fit.record_of`` (numpy) on 64 records, ms a record;
+    2. ``run_batch`` end to end on ``--stage-batch`` records, chunk ``--chunk``: the first run, its compilations
+       included (the rate "with compile"), with its statuses, errors and coverage against the truth;
+    3. the analysis program on one chunk (``run.analyse_many``, vmapped, warm): its time, the device's peak
+       memory, and each stage's iterations (the most any record took, which its block runs, against the
+       record median);
+    4. ``run_batch`` again: the warm rate;
+    5. the chunk's spectra at once (``fit.records_of``, jnp), warm, ms a record.
+
+    Steps begun after ``--deadline`` seconds are skipped; the profile is written after every step.
+    """
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+
+    from tactile_jax.batch import run as batch_mod
+    from tactile_jax.inference import run
+    from tactile_jax.inference.analysis import STAGES
+    from tactile_jax.inference.fit import record_of, records_of
+    from tactile_jax.inference.options import FitOptions, analysis_settings, choices_of
+    from tactile_jax.model.sensor import PAPER_SENSOR
+
+    t_begin = time.perf_counter()
+    cache = Path(tempfile.mkdtemp(prefix="tjx_stage_cache_")) / "jax"
+    jax.config.update("jax_compilation_cache_dir", str(cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    out_path = Path(args.json or Path(args.out) / "throughput_stages.json")
+    res = {"machine": machine(), "window": args.window or "default", "chunk": args.chunk, "steps": []}
+
+    def save(step):
+        res["steps"].append(step)
+        res["elapsed_s"] = time.perf_counter() - t_begin
+        res["memory"] = _device_memory()
+        out_path.write_text(json.dumps(res, indent=1, default=str))
+        print(f"  [{res['elapsed_s']:.0f} s] {step}", file=sys.stderr, flush=True)
+
+    def late():
+        return time.perf_counter() - t_begin > args.deadline
+
+    clean, ref, truth_pool = pool("oblique", Path(args.out) / f"throughput_pool_oblique_{args.pool}.npz", args.pool)
+    n, size = args.stage_batch, args.chunk
+    depths = (PAPER_SENSOR.d1, PAPER_SENSOR.d2)
+    options = FitOptions(window=args.window)
+    settings, choices = analysis_settings(options), choices_of(options)
+    sigs = np.stack([draw("oblique", clean, ref, j)[0] for j in range(max(n, size))]).astype(float)
+
+    times = []
+    for x in sigs[:64]:
+        t0 = time.perf_counter()
+        record_of(x, FS, depths, options)
+        times.append(time.perf_counter() - t0)
+    res["spectra_host_ms"] = 1e3 * float(np.median(times[1:]))
+    save(f"host spectra (numpy): {res['spectra_host_ms']:.1f} ms a record (median of 63)")
+
+    work = Path(tempfile.mkdtemp(prefix="tjx_stage_"))
+    files = _write_inputs("oblique", clean, ref, n, work)
+    order = {str(p): f * FILE_RECORDS for f, p in enumerate(files)}
+
+    def batch(label):
+        batch_mod._NPZ_CACHE.clear()
+        t0 = time.perf_counter()
+        summary = batch_mod.run_batch([str(p) for p in files], work / "rows.json", chunk_size=size, progress=False,
+                                      resume=False, processes=args.processes, options=options)
+        wall = time.perf_counter() - t0
+        rows = json.loads((work / "rows.json").read_text())
+        by_j = {order[r["file"]] + int(r["index"]): r for r in rows}
+        rows = [by_j.get(j, {"status": "missing"}) for j in range(n)]
+        truth = truth_pool[np.arange(n) % len(clean)]
+        ok = np.array([r.get("status") == "ok" for r in rows])
+        acc = accuracy([r for r, o in zip(rows, ok) if o], truth[ok])
+        entry = res[label] = {"records": n, "chunk": size, "wall_s": wall, "rate": n / wall,
+                              "timings": summary.timings, "accuracy_ok": acc,
+                              "status": dict(collections.Counter(r.get("status") for r in rows))}
+        save(f"run_batch {label}: {n} records, chunk {size}: {wall:.1f} s ({n / wall:.1f} rec/s); "
+             + ", ".join(f"{k} {v:.1f} s" for k, v in summary.timings.items())
+             + f"; {entry['status']}; median |vx|, |vy| error {_num(acc['vx_err_pct_median'])}, "
+               f"{_num(acc['vy_err_pct_median'])} % of |v|; 1-sigma cover vx / vy / a {_pct(acc['vx_cover1'])} / "
+               f"{_pct(acc['vy_cover1'])} / {_pct(acc['a_cover1'])} %")
+
+    try:
+        if n and not late():
+            batch("batch_first")
+        if not late():
+            recs = records_of(sigs[:size], np.full(size, FS), [depths] * size, [options] * size)
+            t0 = time.perf_counter()
+            an = run.analyse_many(recs, settings, choices, size, vmapped=True)
+            entry = res["analysis"] = {"size": size, "block": run.VMAP_BLOCK, "warm_s": time.perf_counter() - t0}
+            it = np.stack([np.asarray(a.stages.iterations) for a in an])           # (size, K)
+            act = np.stack([np.asarray(a.stages.active) for a in an])
+            blocks = it.reshape(-1, min(run.VMAP_BLOCK, size), len(STAGES)) if size % min(run.VMAP_BLOCK, size) == 0 \
+                else it[None]
+            entry["iterations"] = {name: {"max": int(it[:, k].max()), "median": float(np.median(it[:, k])),
+                                          "active_share": float(act[:, k].mean())} for k, name in enumerate(STAGES)}
+            entry["iterations_per_block"] = float(blocks.max(axis=1).sum(axis=-1).mean())   # what a block runs
+            entry["iterations_per_record"] = float(np.median(it.sum(axis=1)))              # what a record needs
+            mem = res["memory"]["peak_bytes_in_use"] if res.get("memory") else None
+            save(f"analysis program, {size} records in blocks of {min(run.VMAP_BLOCK, size)}, warm: "
+                 f"{entry['warm_s']:.2f} s ({size / entry['warm_s']:.1f} rec/s); a block iterates "
+                 f"{entry['iterations_per_block']:.0f} times (mean), a record needs "
+                 f"{entry['iterations_per_record']:.0f} (median); peak device memory so far "
+                 f"{'-' if mem is None else f'{mem / 2**30:.2f} GiB'}")
+        if n and not late():
+            batch("batch_warm")
+        if not late():
+            t0 = time.perf_counter()
+            recs = records_of(sigs[:size], np.full(size, FS), [depths] * size, [options] * size)
+            res["spectra_device_ms"] = 1e3 * (time.perf_counter() - t0) / size
+            save(f"spectra of the chunk at once (jnp), warm: {res['spectra_device_ms']:.2f} ms a record")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return res
+
+
 # --------------------------------------------------------------------------- report
 
 
@@ -386,8 +515,17 @@ def main():
                     help="fit one contact window (default: both, the one the data prefer kept, as batch does)")
     ap.add_argument("--scipy-max", type=int, default=1000, help="scipy loop on at most this many records")
     ap.add_argument("--out", default="benchmarks/out")
+    ap.add_argument("--stages", action="store_true",
+                    help="profile one process's stages on its default device (a GPU where there is one) instead")
+    ap.add_argument("--stage-batch", type=int, default=1000, help="with --stages: records of run_batch end to end")
+    ap.add_argument("--json", default=None, help="with --stages: where to write the profile (default: in --out)")
+    ap.add_argument("--deadline", type=float, default=1e9, help="with --stages: skip the steps begun after this (s)")
     ap.add_argument("--one", nargs=2, metavar=("SET", "SIZE"), default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.stages:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        stages(args)
+        return
     if args.one is not None:
         print(json.dumps(one(args.one[0], int(args.one[1]), args)))
         return

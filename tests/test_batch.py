@@ -272,3 +272,22 @@ def test_near_axis_slips_no_ok_row_beyond_3_sigma(tmp_path):
                 bad.append((int(row["index"]), name, t, value, err))
     assert not bad, bad
     assert sum(r["status"] == "ok" for r in rows) >= 45
+
+
+def test_chunk_spectra_at_once_give_the_same_rows(local_run, dataset, tmp_path, monkeypatch):
+    """The accelerator's path (the chunk's spectra in one jnp program), run on the CPU: the rows of numpy's
+    record-by-record spectra, a bad record still its own row."""
+    import tactile_jax.batch.run as batch_run
+
+    monkeypatch.setattr(batch_run, "DEVICE_SPECTRA", True)
+    out = tmp_path / "rows.json"
+    run_batch([dataset / "sub" / "nan.npz"], out, chunk_size=64, progress=False, processes=1,
+              options=FitOptions(**GAUSS))
+    new, old = _by_key(read_results(out)), _by_key(local_run[1])
+    assert sorted(row["status"] for row in new.values()) == ["nonfinite", "ok"]
+    for key, row in new.items():
+        assert row["status"] == old[key]["status"], key
+        for name in ("vx", "vy", "a"):
+            value, err = old[key].get(name), old[key].get(name + "_err")
+            if value is not None:
+                assert abs(row[name] - value) <= 1e-6 * (err if err else abs(value)), (key, name)

@@ -408,3 +408,46 @@ def test_errors_from_the_neighbours_do_not_weight_the_ratio_up():
     assert own > 5 * sd_mean                                        # measured: +0.021 (sd of the mean 0.0025)
     assert abs(neighbours) < 3 * sd_mean
     assert neighbour_log_ratio_err(ratio, 0) is ratio.log_ratio_err
+
+
+def test_welch_many_gives_each_records_segments():
+    """The chunk's spectra in one jnp program equal numpy's record by record (per-record fs, prewhitening on
+    and off, a given segment)."""
+    from tactile_jax.spectral.segments import segments
+    from tactile_jax.spectral.welch_many import welch_many
+
+    sig = _correlated(np.random.default_rng(3), 4096, (3,))
+    sig[..., 1:] += 0.9 * sig[..., :-1]                      # coloured, so that prewhitening has work to do
+    fs = np.array([1000.0, 2000.0, 1500.0])
+    for kw in (dict(), dict(prewhiten=0), dict(nperseg=300, prewhiten=3)):
+        many = welch_many(sig, fs, **kw)
+        for i in range(3):
+            one = segments(sig[i], fs[i], **kw)
+            for name in one._fields:
+                a, b = np.asarray(getattr(one, name)), np.asarray(getattr(many, name))[i]
+                assert a.shape == b.shape, name
+                np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12 * np.max(np.abs(a)), err_msg=name)
+    with pytest.raises(TactileInputError, match="prewhiten"):
+        welch_many(sig, 1000.0, prewhiten=12)
+
+
+def test_records_of_lengthens_the_segments_of_slow_slips_as_record_of():
+    """The chunk's records at once (``fit.records_of``): the same segments, bands and lengthened segments as
+    ``fit.record_of`` record by record (a slow slip gets a longer segment, a fast one keeps the default)."""
+    import jax
+
+    from tactile_jax.inference.fit import record_of, records_of
+    from tactile_jax.inference.options import FitOptions
+    from tactile_jax.simulation.scene import Scene, simulate
+
+    recs = [simulate(Scene(velocity=v, contact_radius=1.5e-3, duration=8.0, snr_db=45.0, seed=7))
+            for v in ((0.01, 0.0), (0.04, 0.01))]
+    sig = np.stack([np.asarray(r.signals, float) for r in recs])
+    options = FitOptions()
+    many = records_of(sig, [FS, FS], [recs[0].depths] * 2, [options] * 2)
+    ones = [record_of(s, FS, recs[0].depths, options) for s in sig]
+    assert int(ones[0].seg.nperseg) > int(ones[1].seg.nperseg) == default_nperseg(sig.shape[-1])
+    for one, got in zip(ones, many):
+        for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(got)):
+            np.testing.assert_allclose(np.asarray(b) * 1.0, np.asarray(a) * 1.0, rtol=1e-9,
+                                       atol=1e-12 * np.max(np.abs(np.asarray(a) * 1.0), initial=0.0))

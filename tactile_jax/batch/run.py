@@ -4,10 +4,14 @@
 ``inputs`` (files, folders searched recursively, multi-record files with
 ``signals`` of shape (n, 4, N)) and writes one data-contract row per record
 to ``out`` (.json, .csv or .parquet). Records are fitted in chunks of
-``chunk_size`` by the joint pipeline that ``fit`` runs on one record
-(``inference.core``, vmapped; the last chunk is padded with copies that are
-dropped). Its inputs have one shape whatever the record's length, segment
-length or band, so a batch compiles it once per chunk size, not per file.
+``chunk_size`` by the analysis program that ``fit`` runs on one record
+(``inference.analysis``). On a CPU a chunk runs record after record and the
+chunks are spread over one process per core; on an accelerator a chunk's
+spectra are one jnp program (``spectral.welch_many``) and its records run
+side by side, in blocks of ``run.VMAP_BLOCK`` (the last chunk is padded with
+copies that are dropped). The program's inputs have one shape whatever the
+record's length, segment length or band, so a batch compiles it once, not
+per file.
 
 Nothing is lost: a bad record (NaN samples, wrong shape, missing fs/depths,
 an unreadable file) becomes a row with its ``status`` (the
@@ -84,6 +88,14 @@ class _FileInfo:
 
 
 # --------------------------------------------------------------------------- inputs
+
+
+#: records per chunk by default: on a CPU each chunk runs record after record in one of the processes; on an
+#: accelerator a chunk runs side by side in blocks of ``run.VMAP_BLOCK`` (device memory about 20 GiB)
+CHUNK_SIZE = {"cpu": 32, "accelerator": 1024}
+#: the chunk's Welch spectra in one compiled program (``fit.records_of``) rather than numpy record by record
+#: (``fit.record_of``); None: on an accelerator only
+DEVICE_SPECTRA: bool | None = None
 
 
 def _walk(inputs, out: Path | None = None) -> tuple[list[str], dict[str, str]]:
@@ -305,14 +317,14 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     from ..inference.options import analysis_settings, choices_of, options_from_file
     from ..inference.select import options_for
-    from ..inference.fit import record_of, result_of, with_line_model
+    from ..inference.fit import record_of, records_of, result_of, with_line_model
     from ..inference import run
     from ..io.recording import Recording, validate_recording
 
     t0 = time.perf_counter()
     tag = options_tag(options)
     rows: dict[int, dict] = {}
-    good, recs, metas = [], [], []
+    good, recs, metas, jobs = [], [], [], []
     info_of: dict[int, _FileInfo] = {}                 # the file of each good record (its sensor)
     pos = 0
     options = options_for(options)
@@ -332,25 +344,53 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
                                            f"{info.path}: cannot read record {i}: {type(exc).__name__}: {exc}", model, tag)
             pos += stop - start
             continue
-        t1 = time.perf_counter()
-        timings["read"] += t1 - t0
+        timings["read"] += time.perf_counter() - t0
         file_options = options_from_file(options, info)          # the file's known velocity and gains
-        vel = file_options.velocity
         for k, i in enumerate(range(start, stop)):
             src = f"{info.path} [record {i}]" if info.multi else info.path
-            try:
-                validate_recording(Recording(block[k], info.fs, info.depths, source=src))
-                recs.append(record_of(block[k], info.fs, info.depths, file_options, source=src))
-            except TactileInputError as err:
-                err = err.with_source(src)
-                rows[pos + k] = _error_row(info.path, i, err.code, str(err), model, tag)
-                continue
-            good.append((pos + k, info.path, i))
-            info_of[pos + k] = info
-            metas.append((vel, info.curvature_radius, block[k], info.fs, file_options))
+            jobs.append((pos + k, info, i, src, block[k], file_options))
         pos += stop - start
         t0 = time.perf_counter()
-        timings["spectra"] += t0 - t1
+
+    def spectra(job):
+        p, info, i, src, signals, file_options = job
+        try:
+            validate_recording(Recording(signals, info.fs, info.depths, source=src))
+            return record_of(signals, info.fs, info.depths, file_options, source=src)
+        except TactileInputError as err:
+            return err.with_source(src)
+
+    t1 = time.perf_counter()
+    made: list = [None] * len(jobs)
+    device = jax.default_backend() != "cpu" if DEVICE_SPECTRA is None else DEVICE_SPECTRA
+    if device and options.method == "welch":
+        # on an accelerator the chunk's spectra are one program per record length (``records_of``); on a CPU
+        # numpy's are as fast per record, and a batch spreads its chunks over one process per core
+        same: dict[int, list[int]] = {}
+        for j, (p, info, i, src, signals, file_options) in enumerate(jobs):
+            try:
+                validate_recording(Recording(signals, info.fs, info.depths, source=src))
+                same.setdefault(np.shape(signals)[-1], []).append(j)
+            except TactileInputError as err:
+                made[j] = err.with_source(src)
+        for idx in same.values():
+            try:
+                recs_n = records_of(np.stack([jobs[j][4] for j in idx]), [jobs[j][1].fs for j in idx],
+                                    [jobs[j][1].depths for j in idx], [jobs[j][5] for j in idx])
+                for j, r in zip(idx, recs_n):
+                    made[j] = r
+            except TactileInputError:           # a setting these records cannot meet: each its own error
+                pass
+    made = [spectra(job) if r is None else r for job, r in zip(jobs, made)]
+    for (p, info, i, src, signals, file_options), r in zip(jobs, made):
+        if isinstance(r, TactileInputError):
+            rows[p] = _error_row(info.path, i, r.code, str(r), model, tag)
+            continue
+        recs.append(r)
+        good.append((p, info.path, i))
+        info_of[p] = info
+        metas.append((file_options.velocity, info.curvature_radius, signals, info.fs, file_options))
+    timings["spectra"] += time.perf_counter() - t1
     if good:
         t1 = time.perf_counter()
         try:
@@ -400,7 +440,8 @@ def _key(row: dict):
         return None
 
 
-def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int = 32, workers: int | None = None,
+def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: int | None = None,
+              workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, resume: bool = True,
               processes: int | None = None, sensor=None) -> BatchSummary:
     """Fit every record under ``inputs`` and write one row each to ``out``; return a :class:`BatchSummary`.
@@ -411,7 +452,8 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     options: ``fit.FitOptions`` (spectral settings, band selection, known velocity, gains, chain): the
         same pipeline and model as ``fit_recording``, without its single-record extras (profile
         bounds, model selection; ``options.model`` must be None).
-    chunk_size: records per compiled call (memory grows with it, not with the batch).
+    chunk_size: records per compiled call (memory grows with it, not with the batch); None: ``CHUNK_SIZE``
+        for the default backend (on an accelerator, blocks of ``run.VMAP_BLOCK`` run one after another).
     workers: start a ``dask.distributed.LocalCluster`` with this many spawned worker processes.
     scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
     processes: without Dask, the chunks run on this many spawned processes (None: one per CPU core where
@@ -439,6 +481,10 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
                                 code="bad_setting")
     if out.suffix.lower() not in RESULT_SUFFIXES:
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
+    import jax
+
+    if chunk_size is None:
+        chunk_size = CHUNK_SIZE["cpu" if jax.default_backend() == "cpu" else "accelerator"]
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
         raise TactileInputError(f"chunk_size must be an int >= 1; got {chunk_size!r}", code="bad_setting")
     if processes is not None and (isinstance(processes, bool) or int(processes) < 1):
@@ -473,14 +519,13 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
             rows.append(_error_row(info.path, 0, info.error.code, str(info.error), model, tag))
     chunks = _plan(infos, done, int(chunk_size))
     total = sum(stop - start for _, segs in chunks for _, start, stop in segs)
-    import jax
-
     x64 = bool(jax.config.jax_enable_x64)
     cache_dir = jax.config.jax_compilation_cache_dir or None
     local = workers is None and scheduler is None
-    # by default one process per core where a persistent cache lets them load the compiled program (without
-    # one, each would compile it again)
-    wanted = int(processes or ((os.cpu_count() or 1) if cache_dir else 1))
+    # by default, on a CPU, one process per core where a persistent cache lets them load the compiled program
+    # (without one, each would compile it again); an accelerator runs each chunk vmapped in this process
+    on_cpu = jax.default_backend() == "cpu"
+    wanted = int(processes or ((os.cpu_count() or 1) if cache_dir and on_cpu else 1))
     n_proc = min(wanted, max(total // MIN_PER_PROCESS, 1)) if local else 1
     if n_proc > 1 and len(chunks) < n_proc:           # every process a chunk
         chunks = _plan(infos, done, max(1, math.ceil(total / n_proc)))

@@ -15,8 +15,9 @@ from .common import parse_floats, user_errors
               help="Spawned processes the chunks run on (default: one per CPU core; 1: this process).")
 @click.option("--workers", type=int, default=None, help="Run on a local Dask cluster of N spawned processes.")
 @click.option("--scheduler", default=None, help="Address of a running Dask scheduler (tcp://host:8786).")
-@click.option("--chunk-size", type=int, default=32, show_default=True,
-              help="Records per compiled call (memory grows with it, not with the batch).")
+@click.option("--chunk-size", type=int, default=None,
+              help="Records per compiled call (memory grows with it, not with the batch) [default: 32 on a CPU, "
+                   "1024 on an accelerator].")
 @click.option("--velocity", default=None, help="Known slip vx,vy in m/s for every record: held fixed.")
 @click.option("--fit-gain", is_flag=True, help="Fit the deep/shallow gain ratios instead of holding them.")
 @click.option("--nperseg", type=int, default=None, help="Welch segment length (default: largest 2^k <= N/8, longer for slow slips, per record).")

@@ -134,6 +134,16 @@ def record_of(signals, fs, depths, options: FitOptions, *, source=None) -> Recor
                       settings=settings_of(options), source=source)
 
 
+def records_of(blocks, fs, depths, options: list[FitOptions]) -> list[Record]:
+    """``record_of`` of many records of one length at once (``run.record_many``: their spectra in jnp), under
+    options that differ at most in the known velocity and gains: what ``batch`` runs on an accelerator.
+    blocks: (B, 4, N); fs: (B,) Hz; depths: (B, 2) m."""
+    first = options[0]
+    return run.record_many(np.asarray(blocks, float), fs, depths, gains=[known_gains(o) for o in options],
+                           velocity=[o.velocity for o in options], nperseg=first.nperseg,
+                           prewhiten=first.prewhiten, settings=settings_of(first))
+
+
 def fit_recording(rec: Recording, options: FitOptions = FitOptions(), *, record: int = 0) -> FitResult:
     """Fit one record of a recording. Raises ``TactileInputError`` for bad input.
 

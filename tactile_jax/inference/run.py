@@ -30,7 +30,7 @@ from .data import JointData, Measured
 from .forward import ModelSpectra
 from ..spectral.segments import Segments, from_spectra, segments
 
-__all__ = ["record", "record_from_spectra", "analyse_one", "analyse_many", "refit_analysis", "fit_one",
+__all__ = ["record", "record_many", "record_from_spectra", "analyse_one", "analyse_many", "refit_analysis", "fit_one",
            "resolution_want"]
 
 #: the log ratio may fall by at most this much across one bin (resolution of slow slips)
@@ -48,14 +48,25 @@ def _locate(rec: Record, settings: Settings):
     return b.speed0, b.n_band
 
 
+#: records a vmapped chunk runs side by side; a larger chunk runs in blocks of this many, one after another
+#: (``jax.lax.map``). The program's working memory is about 96 MB a record on a GPU (its Jacobians by forward
+#: differentiation through the Hertz quadrature), so a block of 128 needs about 12 GiB, and each block iterates
+#: until its own slowest record stops rather than the chunk's.
+VMAP_BLOCK = 128
+
+
 def _analyse_many(recs: Record, settings: Settings, choices: Choices, starts: Start) -> Analysis:
-    return jax.vmap(_analyse, in_axes=(0, None, None, 0))(recs, settings, choices, starts)
+    n = jax.tree.leaves(starts)[0].shape[0]
+    if n <= VMAP_BLOCK:
+        return jax.vmap(_analyse, in_axes=(0, None, None, 0))(recs, settings, choices, starts)
+    return jax.lax.map(lambda x: _analyse(x[0], settings, choices, x[1]), (recs, starts), batch_size=VMAP_BLOCK)
 
 
 @functools.cache
 def _programs():
     """The compiled programs, built on first use (one set per process)."""
-    return {"locate": jax.jit(_locate), "core": _single_core(),
+    return {"locate": jax.jit(_locate), "locate_many": jax.jit(jax.vmap(_locate, in_axes=(0, None))),
+            "core": _single_core(),
             "analyse": _exported(_analyse, "analyse"), "analyse_many": jax.jit(_analyse_many)}
 
 
@@ -190,6 +201,34 @@ def record(signals, fs: float, depths, *, gains=(1.0, 1.0), velocity=None, metho
     return _record(seg, depths, gains, velocity)
 
 
+def record_many(signals, fs, depths, *, gains, velocity, nperseg: int | None = None, prewhiten: int | None = 8,
+                settings: Settings = Settings()) -> list[Record]:
+    """``record`` (Welch) of each of many records of one length at once: their spectra in jnp
+    (``welch_many``), their bands located side by side, and the segments of those that need a longer one
+    remade together. signals: (B, 4, N); fs: (B,) Hz; depths, gains: (B, 2); velocity: B known velocities
+    or None. Raises ``TactileInputError`` for settings no record can meet (as ``record``)."""
+    from ..spectral.welch_many import welch_many
+
+    b, n = len(signals), np.shape(signals)[-1]
+    fs = np.broadcast_to(np.asarray(fs, float), (b,))
+    seg = jax.tree.map(np.asarray, welch_many(signals, fs, nperseg=nperseg, prewhiten=prewhiten))
+    one = lambda tree, i: jax.tree.map(lambda x: x[i], tree)     # noqa: E731
+    recs = [_record(one(seg, i), depths[i], gains[i], velocity[i]) for i in range(b)]
+    if nperseg:
+        return recs
+    speed0, n_band = jax.tree.map(np.asarray, _programs()["locate_many"](_as_jnp(_stack(recs)), settings))
+    n0 = int(seg.nperseg[0])
+    want = np.array([resolution_want(speed0[i], n_band[i], fs[i], np.asarray(depths[i], float),
+                                     n - (prewhiten or 0), n0) for i in range(b)])
+    for length in np.unique(want[want > n0]):
+        idx = np.flatnonzero(want == length)
+        longer = jax.tree.map(np.asarray, welch_many(np.asarray(signals)[idx], fs[idx], nperseg=int(length),
+                                                     prewhiten=prewhiten))
+        for k, i in enumerate(idx):
+            recs[i] = _record(one(longer, k), depths[i], gains[i], velocity[i])
+    return recs
+
+
 def record_from_spectra(omega, psd, csd, depths, *, n_segments: float, xy=None, groups=None, kernel=None,
                         bin_factor=None, whitening=None, fs=None, gains=(1.0, 1.0), velocity=None,
                         source=None) -> Record:
@@ -244,7 +283,8 @@ def analyse_many(recs: list[Record], settings: Settings, choices: Choices = Choi
                  vmapped: bool | None = None) -> list[Analysis]:
     """``analysis.analyse`` on each record: one ``Analysis`` each (numpy).
 
-    vmapped: the chunk side by side in one program (``jax.vmap``, padded to ``size`` with copies of the first);
+    vmapped: the chunk side by side in one program (``jax.vmap``, padded to ``size`` with copies of the first;
+    beyond ``VMAP_BLOCK`` records, in blocks of that many, and padded to whole blocks);
     None: on an accelerator only. On a CPU the single-record program (the one ``fit`` runs) one record after
     another is as fast per core; ``batch`` uses the other cores with processes."""
     if vmapped is None:
@@ -255,6 +295,8 @@ def analyse_many(recs: list[Record], settings: Settings, choices: Choices = Choi
     if not vmapped:
         return [analyse_one(r, settings, choices) for r in recs]
     size = max(size or n, n)
+    if size > VMAP_BLOCK:                       # whole blocks: a remainder would compile the program a second time
+        size = VMAP_BLOCK * math.ceil(size / VMAP_BLOCK)
     stacked = _as_jnp(_stack(recs + [recs[0]] * (size - n)))
     out = _programs()["analyse_many"](stacked, _as_jnp(settings), _as_jnp(choices),
                                        _as_jnp(_stack([no_start()] * size)))
