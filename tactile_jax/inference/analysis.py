@@ -49,6 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._numerics import any_in_batch
 from .core import (HERTZ_PER_GAUSS, ITERATIONS, N_STARTS, OWN_STARTS, STOP_TOL, DECREMENT_TOL, Errors, Located,
                    Record, Settings, Start, Summary, errors, fit_status, no_start, prepare, settled_physics,
                    statistics, summary_at)
@@ -443,7 +444,9 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     def plan_hx(st, ends):
         first = _first_window(st, bin_factor)
         wanted = jnp.where(window == 0, _poor(st, first.kept), window == 2) & _poor(st, H1) & ~refit
-        starts = jax.lax.cond(wanted, hertz_starts, lambda: prep_h.starts)
+        # run where some record of a chunk wants them (a record that does not has the stage off: its starts
+        # are not used)
+        starts = jax.lax.cond(any_in_batch(wanted), hertz_starts, lambda: prep_h.starts)
         return own_starts(prep_h._replace(starts=starts), OWN_STARTS["hertz"], True, wanted)
 
     def plan_gw2(st, ends):
@@ -512,8 +515,10 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         status = jnp.where(plan.active, fit_status(n_bins, finite, converged, redchi), 4)
         chi2 = jnp.where(plan.active & jnp.isfinite(chi2), chi2, jnp.inf)
         # the errors where the stage ended a solve (not G0's scouting), computed once for every later choice
-        e = jax.lax.cond(plan.active & (plan.n_final > 0),
-                         lambda: errors(record, data_g, plan.free, i0, theta, r, jac), lambda: blank)
+        solved = plan.active & (plan.n_final > 0)
+        e = jax.lax.cond(any_in_batch(solved), lambda: jax.tree.map(
+            lambda x, o: jnp.where(solved, x, o), errors(record, data_g, plan.free, i0, theta, r, jac), blank),
+            lambda: blank)
         new = (theta, plan.free, chi2, redchi, n_data.astype(dtype), status, plan.active, plan.hertz, e, r, jac, model,
                n_iter)
         st = jax.tree.map(lambda whole, x: whole.at[k].set(x), st, Stages(*new))

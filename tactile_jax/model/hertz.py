@@ -64,6 +64,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from .._numerics import any_in_batch
+
 __all__ = [
     "DEFAULT_PARAMS",
     "HertzTable",
@@ -728,10 +730,11 @@ def _all(meta: _Meta, depth_index, far_field, ks, kp, depths, a, coef):
         return (keep * val + beta * f, keep * g_s + beta * f_s + diff * dbeta * dm_s,
                 keep * g_p + beta * f_p + diff * dbeta * dm_p, keep * g_d + beta * f_d)
 
-    # each evaluated only when some node needs it (conditionals: skipped at run time otherwise)
+    # each evaluated only when some node needs it (conditionals: skipped at run time otherwise; under vmap
+    # when some record of the chunk does: each branch changes only the nodes that need it)
     args = (val, g_s, g_p, g_d)
-    args = lax.cond(jnp.any(delta_d < meta.delta_min), small, lambda *x: x, *args)
-    return lax.cond(jnp.any(m > lo), far, lambda *x: x, *args)
+    args = lax.cond(any_in_batch(lax.stop_gradient(delta_d) < meta.delta_min), small, lambda *x: x, *args)
+    return lax.cond(any_in_batch(lax.stop_gradient(m) > lo), far, lambda *x: x, *args)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2))
