@@ -202,13 +202,18 @@ class _Plan(NamedTuple):
 
 
 def _either(theta, args):
-    """The joint residuals and model under the window ``args[3]`` says (traced: one branch runs per record;
-    ``args[2]`` None: the Gaussian window's alone)."""
+    """The joint residuals and model under the window ``args[3]`` says (traced; ``args[2]`` None: the Gaussian
+    window's alone). Each window is computed only where some record wants it: on one record, one window;
+    under ``vmap``, a chunk whose records all want one window (every stage but the texture and direction
+    refits) computes that one alone, instead of both for every record."""
     data_g, data_h, coef, use_hertz = args
     if coef is None:
         return residuals_and_model(theta, (data_g, None))
-    return jax.lax.cond(use_hertz, lambda t: residuals_and_model(t, (data_h, coef)),
-                        lambda t: residuals_and_model(t, (data_g, None)), theta)
+    shape = jax.eval_shape(lambda t: residuals_and_model(t, (data_g, None)), theta)
+    blank = lambda t: jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shape)     # noqa: E731
+    hz = jax.lax.cond(any_in_batch(use_hertz), lambda t: residuals_and_model(t, (data_h, coef)), blank, theta)
+    gs = jax.lax.cond(any_in_batch(~use_hertz), lambda t: residuals_and_model(t, (data_g, None)), blank, theta)
+    return jax.tree.map(lambda h, g: jnp.where(use_hertz, h, g), hz, gs)
 
 
 def _akaike_weight(margin):
