@@ -352,36 +352,35 @@ def _run_chunk(infos_part: list[_FileInfo], segments, size: int, options: FitOpt
         pos += stop - start
         t0 = time.perf_counter()
 
-    def spectra(job):
-        p, info, i, src, signals, file_options = job
+    t1 = time.perf_counter()
+    made: list = [None] * len(jobs)                # each record's Record, or its error
+    for j, (p, info, i, src, signals, file_options) in enumerate(jobs):
         try:
             validate_recording(Recording(signals, info.fs, info.depths, source=src))
-            return record_of(signals, info.fs, info.depths, file_options, source=src)
         except TactileInputError as err:
-            return err.with_source(src)
-
-    t1 = time.perf_counter()
-    made: list = [None] * len(jobs)
+            made[j] = err.with_source(src)
     device = jax.default_backend() != "cpu" if DEVICE_SPECTRA is None else DEVICE_SPECTRA
     if device and options.method == "welch":
         # on an accelerator the chunk's spectra are one program per record length (``records_of``); on a CPU
         # numpy's are as fast per record, and a batch spreads its chunks over one process per core
         same: dict[int, list[int]] = {}
-        for j, (p, info, i, src, signals, file_options) in enumerate(jobs):
-            try:
-                validate_recording(Recording(signals, info.fs, info.depths, source=src))
-                same.setdefault(np.shape(signals)[-1], []).append(j)
-            except TactileInputError as err:
-                made[j] = err.with_source(src)
+        for j, r in enumerate(made):
+            if r is None:
+                same.setdefault(np.shape(jobs[j][4])[-1], []).append(j)
         for idx in same.values():
             try:
                 recs_n = records_of(np.stack([jobs[j][4] for j in idx]), [jobs[j][1].fs for j in idx],
                                     [jobs[j][1].depths for j in idx], [jobs[j][5] for j in idx])
                 for j, r in zip(idx, recs_n):
                     made[j] = r
-            except TactileInputError:           # a setting these records cannot meet: each its own error
+            except TactileInputError:           # a setting these records cannot meet: each its own error below
                 pass
-    made = [spectra(job) if r is None else r for job, r in zip(jobs, made)]
+    for j, (p, info, i, src, signals, file_options) in enumerate(jobs):
+        if made[j] is None:
+            try:
+                made[j] = record_of(signals, info.fs, info.depths, file_options, source=src)
+            except TactileInputError as err:
+                made[j] = err.with_source(src)
     for (p, info, i, src, signals, file_options), r in zip(jobs, made):
         if isinstance(r, TactileInputError):
             rows[p] = _error_row(info.path, i, r.code, str(r), model, tag)
@@ -483,8 +482,9 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         raise TactileInputError(f"--out must end in {', '.join(RESULT_SUFFIXES)}", source=str(out), code="bad_setting")
     import jax
 
+    on_cpu = jax.default_backend() == "cpu"
     if chunk_size is None:
-        chunk_size = CHUNK_SIZE["cpu" if jax.default_backend() == "cpu" else "accelerator"]
+        chunk_size = CHUNK_SIZE["cpu" if on_cpu else "accelerator"]
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size < 1:
         raise TactileInputError(f"chunk_size must be an int >= 1; got {chunk_size!r}", code="bad_setting")
     if processes is not None and (isinstance(processes, bool) or int(processes) < 1):
@@ -524,7 +524,6 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
     local = workers is None and scheduler is None
     # by default, on a CPU, one process per core where a persistent cache lets them load the compiled program
     # (without one, each would compile it again); an accelerator runs each chunk vmapped in this process
-    on_cpu = jax.default_backend() == "cpu"
     wanted = int(processes or ((os.cpu_count() or 1) if cache_dir and on_cpu else 1))
     n_proc = min(wanted, max(total // MIN_PER_PROCESS, 1)) if local else 1
     if n_proc > 1 and len(chunks) < n_proc:           # every process a chunk

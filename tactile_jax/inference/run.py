@@ -212,8 +212,7 @@ def record_many(signals, fs, depths, *, gains, velocity, nperseg: int | None = N
     b, n = len(signals), np.shape(signals)[-1]
     fs = np.broadcast_to(np.asarray(fs, float), (b,))
     seg = jax.tree.map(np.asarray, welch_many(signals, fs, nperseg=nperseg, prewhiten=prewhiten))
-    one = lambda tree, i: jax.tree.map(lambda x: x[i], tree)     # noqa: E731
-    recs = [_record(one(seg, i), depths[i], gains[i], velocity[i]) for i in range(b)]
+    recs = [_record(s, depths[i], gains[i], velocity[i]) for i, s in enumerate(_unstack(seg, b))]
     if nperseg:
         return recs
     speed0, n_band = jax.tree.map(np.asarray, _programs()["locate_many"](_as_jnp(_stack(recs)), settings))
@@ -224,8 +223,8 @@ def record_many(signals, fs, depths, *, gains, velocity, nperseg: int | None = N
         idx = np.flatnonzero(want == length)
         longer = jax.tree.map(np.asarray, welch_many(np.asarray(signals)[idx], fs[idx], nperseg=int(length),
                                                      prewhiten=prewhiten))
-        for k, i in enumerate(idx):
-            recs[i] = _record(one(longer, k), depths[i], gains[i], velocity[i])
+        for i, s in zip(idx, _unstack(longer, len(idx))):
+            recs[i] = _record(s, depths[i], gains[i], velocity[i])
     return recs
 
 

@@ -100,6 +100,21 @@ def _response(coeffs, omega, fs):
     return coeffs @ np.exp(-1j * np.outer(k, omega / fs))
 
 
+def _onesided(nfft: int) -> np.ndarray:
+    """(nfft // 2 + 1,) the one-sided spectrum's factor: 2, with 1 at DC and at the Nyquist bin of an even nfft."""
+    onesided = np.full(nfft // 2 + 1, 2.0)
+    onesided[0] = 1.0
+    if nfft % 2 == 0:
+        onesided[-1] = 1.0
+    return onesided
+
+
+def _groups(n_seg: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each of ``n_seg`` consecutive segments' group (at most ``N_GROUPS``), and the segments in each group."""
+    group = np.minimum(np.arange(n_seg) * N_GROUPS // n_seg, N_GROUPS - 1)
+    return group, np.bincount(group, minlength=N_GROUPS).astype(float)
+
+
 def min_nperseg() -> int:
     """The shortest Welch segment (samples) that can give a band: 2 (``band.MIN_BINS`` + 1) = 14.
 
@@ -198,19 +213,14 @@ def segments(signals, fs: float, *, method: str = "welch", nperseg: int | None =
         nfft = x.shape[-1]
         nperseg = nfft
     m = nfft // 2 + 1
-    onesided = np.full(m, 2.0)
-    onesided[0] = 1.0
-    if nfft % 2 == 0:
-        onesided[-1] = 1.0
-    spec = spec * np.sqrt(scale * onesided)                               # (4, K, m)
+    spec = spec * np.sqrt(scale * _onesided(nfft))                        # (4, K, m)
     omega = 2.0 * np.pi * fs * np.arange(m) / nfft
     resp = _response(coeffs, omega, fs)                                    # (2, m)
     gain = np.abs(resp) ** 2
     auto = np.abs(spec) ** 2 / np.repeat(gain, 2, axis=0)[:, None, :]
     csd = np.conj(spec[0::2]) * spec[1::2] / gain[:, None, :]
     xy = (np.conj(spec[0:2, None]) * spec[None, 2:4]).reshape(4, n_seg, m) / (np.conj(resp[0]) * resp[1])
-    # consecutive segments into at most N_GROUPS groups
-    group = np.minimum(np.arange(n_seg) * N_GROUPS // n_seg, N_GROUPS - 1)
+    group, count = _groups(n_seg)
     m_out = min(m, N_BINS)
 
     def grouped(v):
@@ -218,7 +228,6 @@ def segments(signals, fs: float, *, method: str = "welch", nperseg: int | None =
         np.add.at(out, (group, slice(None), slice(0, m_out)), np.moveaxis(v[..., :m_out], 1, 0))
         return out
 
-    count = np.bincount(group, minlength=N_GROUPS).astype(float)
     return Segments(grouped(auto), grouped(csd), grouped(xy), count, np.asarray(omega[1]), np.asarray(m_out),
                     np.asarray(dof), np.asarray(n_seg / dof if method == "welch" else 1.0), np.asarray(bin_factor),
                     np.asarray(kernel), coeffs, np.asarray(float(fs)), np.asarray(nperseg))

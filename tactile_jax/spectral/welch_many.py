@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .prewhiten import burg_ar
-from .segments import AR_ORDER, N_BINS, N_GROUPS, Segments, _estimator, check_nperseg
+from .segments import AR_ORDER, N_BINS, N_GROUPS, Segments, _estimator, _groups, _onesided, check_nperseg
 
 __all__ = ["welch_many"]
 
@@ -39,12 +39,8 @@ def _welch(signals, fs, nperseg: int, order: int):
     seg = x[:, :, idx]                                                                      # (B, 4, K, n)
     seg = seg - jnp.mean(seg, axis=-1, keepdims=True)
     m = nperseg // 2 + 1
-    onesided = np.full(m, 2.0)
-    onesided[0] = 1.0
-    if nperseg % 2 == 0:
-        onesided[-1] = 1.0
     scale = 1.0 / (fs * np.sum(tapers[0] ** 2))                                             # (B,)
-    spec = jnp.fft.rfft(seg * tapers[0], axis=-1) * jnp.sqrt(scale[:, None, None, None] * onesided)
+    spec = jnp.fft.rfft(seg * tapers[0], axis=-1) * jnp.sqrt(scale[:, None, None, None] * _onesided(nperseg))
     # the filters' response at bin j is a function of j / nperseg alone, whatever fs
     phase = np.exp(-1j * np.outer(np.arange(AR_ORDER + 1), 2.0 * np.pi * np.arange(m) / nperseg))
     resp = coeffs.astype(phase.dtype) @ phase                                               # (B, 2, m)
@@ -55,8 +51,7 @@ def _welch(signals, fs, nperseg: int, order: int):
     csd = jnp.conj(spec[:, 0::2]) * spec[:, 1::2] / gain[:, :, None, :]
     xy = (jnp.conj(spec[:, 0:2, None]) * spec[:, None, 2:4]).reshape(b, 4, n_seg, m_out)
     xy = xy / (jnp.conj(resp[:, 0]) * resp[:, 1])[:, None, None, :]
-    group = np.minimum(np.arange(n_seg) * N_GROUPS // n_seg, N_GROUPS - 1)
-    onehot = (group[None, :] == np.arange(N_GROUPS)[:, None]).astype(float)                 # (G, K)
+    onehot = (_groups(n_seg)[0][None, :] == np.arange(N_GROUPS)[:, None]).astype(float)     # (G, K)
 
     def grouped(v):                                                                         # (B, C, K, m_out)
         g = jnp.einsum("gk,bckm->bgcm", onehot.astype(v.dtype), v)
@@ -84,8 +79,7 @@ def welch_many(signals, fs, *, nperseg: int | None = None, prewhiten: int | None
     auto, csd, xy, coeffs = _welch(x, jnp.asarray(fs, x.dtype), nperseg, p)
     tapers, step, n_seg, dof, bin_factor, kernel = _estimator("welch", nperseg, n - p, 0.0, 0)
     m_out = min(nperseg // 2 + 1, N_BINS)
-    group = np.minimum(np.arange(n_seg) * N_GROUPS // n_seg, N_GROUPS - 1)
-    count = np.bincount(group, minlength=N_GROUPS).astype(float)
+    count = _groups(n_seg)[1]
 
     def each(v):
         return np.broadcast_to(np.asarray(v), (b,) + np.shape(v)).copy()
