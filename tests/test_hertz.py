@@ -185,7 +185,7 @@ def test_factors_and_cutoff(fns):
     assert KBAND * 10e-3 < kmax - 12          # the whole 10 mm band is inside the exact zone
 
 
-def test_a_vmapped_chunk_runs_the_far_field_only_where_a_record_needs_it():
+def test_a_vmapped_chunk_runs_the_far_field_only_where_a_record_needs_it(fns):
     """Under vmap the far-field branch runs for the chunk where one record's nodes reach it, and leaves the
     other records' values as they are alone: each record's Hn vmapped equals its Hn on its own."""
     from tactile_jax._numerics import any_in_batch
@@ -195,10 +195,13 @@ def test_a_vmapped_chunk_runs_the_far_field_only_where_a_record_needs_it():
     far = _nodes(rng, 900.0, 170.0)                 # beyond it
     a = np.array([1.5e-3, 1.5e-3])
     ks, kp = np.stack([near[0], far[0]]) / a[:, None, None], np.stack([near[1], far[1]]) / a[:, None, None]
-    f = jax.jit(lambda s, p, r: hertz.hertz_hn(s, p, jnp.asarray(DEPTHS), r))
-    many = np.asarray(jax.vmap(f)(ks, kp, a))
-    for i in range(2):
-        np.testing.assert_allclose(many[i], np.asarray(f(ks[i], kp[i], a[i])), rtol=1e-12, atol=1e-14)
+    table = fns[2]
+    many = jax.jit(jax.vmap(lambda s, p, r, coef: hertz.hertz_hn(s, p, jnp.asarray(DEPTHS), r,
+                                                                  table._replace(coef=coef)),
+                            in_axes=(0, 0, 0, None)))(ks, kp, a, table.coef)
+    for i in range(2):          # alone: the module's program of one record
+        alone = _call(fns[0], ks[i], kp[i], DEPTHS, a[i])[0]
+        np.testing.assert_allclose(np.asarray(many[i]), np.asarray(alone), rtol=1e-12, atol=1e-14)
     # the predicate: the record's any alone, the chunk's any (unbatched) under vmap
     x = jnp.array([[-1.0, -2.0], [-1.0, 3.0]])
     assert not bool(any_in_batch(x[0] > 0)) and bool(any_in_batch(x[1] > 0))
