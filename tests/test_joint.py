@@ -242,6 +242,36 @@ def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
     assert n_at == 1 and np.array_equal(at, full)
 
 
+def test_a_solve_gives_up_once_it_cannot_beat_the_bound():
+    """``give_up_chi2``: after ``soft_after`` final iterations a solve whose chi-square, less the decrement still
+    to go, stays above the bound ends (a wrong basin's local minimum); one that can go below it runs on."""
+    x = jnp.linspace(0.0, 3.0, 60)
+    free = jnp.array([True, True])
+    calls = []
+
+    def counted(theta, x):
+        jax.debug.callback(lambda: calls.append(1))
+        return _toy(theta, x)
+
+    @jax.jit
+    def run(start, bound):
+        return levenberg_marquardt(counted, start[None], x, free, free, n_start=1, n_first=0, n_final=30,
+                                   skip_starts=True, stop_tol=0.0, soft_after=3, soft_tol=0.0, give_up_chi2=bound)[0]
+
+    def solve(start, bound):
+        calls.clear()
+        theta = np.asarray(run(jnp.asarray(start, float), bound))
+        jax.effects_barrier()
+        return theta, len(calls)
+
+    wrong, n_wrong = solve([1.0, 0.0], 100.0)         # a local minimum of chi2 ~ 1e5
+    assert n_wrong == 4 and abs(wrong[0] - 3.0) > 0.5
+    right, n_right = solve([2.9, 0.4], 100.0)          # reaches chi2 ~ 0: runs its 30 iterations
+    assert n_right == 31 and np.allclose(right, [3.0, 0.5], atol=1e-6)
+    _, n_never = solve([1.0, 0.0], np.inf)
+    assert n_never == 31
+
+
 def test_resolution_rules():
     fs, depths, n = 1000.0, np.array([D1, D2]), 16000
     # a slow slip's ratio falls fast per bin: longer segments, capped at 6 half-overlapping ones

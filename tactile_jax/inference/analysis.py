@@ -13,7 +13,10 @@ G0    the Gaussian window's starts, each explored (``core``'s step 4): the
       the Gaussian fit itself
 H1    the Hertz disk from the one of G0's ends of lowest Hertz cost
 GW1   the Gaussian window refitted from H1 (its radius scaled to the same second
-      moment): the window choice compares the two by chi-square
+      moment): the window choice compares the two by chi-square. H1 (against
+      G0's scouting), GW1 and GW2 (against the Hertz fit they start from) stop
+      once they could no longer win the choice (``GIVE_UP_FACTOR``); the
+      window margin is then the one where the loser stopped
 HX    the Hertz disk's own starts (each pair fitted with the disk's curve),
       where the chosen fit and H1 are poor or unsettled: a large disk at a
       slow slip bends the ratio beyond what the Gaussian window follows
@@ -60,7 +63,7 @@ from .solve import levenberg_marquardt
 
 __all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
            "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
-           "AXIS_FLOOR", "A_NEGLIGIBLE", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
+           "AXIS_FLOOR", "A_NEGLIGIBLE", "GIVE_UP_FACTOR", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
 
 STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN")
 G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN = range(len(STAGES))
@@ -84,6 +87,11 @@ DIRECTION_TESTED = 0.3
 AXIS_FLOOR = 1e-3
 #: contact radius (m) standing for "no window": its offset 3 (d2^2 - d1^2) / (2 a^2) is 1e-4 at the paper's depths
 A_NEGLIGIBLE = 0.1
+#: a window's solve (H1, GW1, GW2) gives up, where the window is chosen, once its chi-square less the
+#: Gauss-Newton decrement still to go is above this many times the other window's chi-square plus the decisive
+#: margin (after ``core.ITERATIONS[2]`` final iterations; there that difference was within 1.4x of where H1
+#: ends on the Gaussian contacts of ``benchmarks/joint_speed.py``): it could no longer win the window
+GIVE_UP_FACTOR = 3.0
 #: the window's need is tested where a is measured to worse than this relative error
 WINDOW_TEST_REL_ERR = 0.05
 #: chi2 rise (in units of a's variance scale) below which a -> infinity is not rejected: one-sided 95 %
@@ -199,6 +207,7 @@ class _Plan(NamedTuple):
     skip: jax.Array
     hertz: jax.Array
     active: jax.Array
+    give_up: jax.Array
 
 
 def _either(theta, args):
@@ -410,38 +419,48 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
 
     def off(hertz=False):       # no iteration at all
         return _Plan(prep_g.starts, prep_g.free, jnp.asarray(1), jnp.asarray(1), jnp.asarray(-1), jnp.asarray(True),
-                     jnp.asarray(hertz), jnp.asarray(False))
+                     jnp.asarray(hertz), jnp.asarray(False), jnp.asarray(jnp.inf))
 
-    def from_point(theta, free, hertz, active):
+    def from_point(theta, free, hertz, active, give_up=jnp.inf):
         """A solve from one point, or a stage switched off."""
         plan = _Plan(jnp.broadcast_to(theta, prep_g.starts.shape), free, jnp.asarray(1), jnp.asarray(1),
-                     jnp.asarray(N_FINAL), jnp.asarray(True), jnp.asarray(hertz), jnp.asarray(active))
+                     jnp.asarray(N_FINAL), jnp.asarray(True), jnp.asarray(hertz), jnp.asarray(active),
+                     jnp.asarray(give_up))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
     def own_starts(prep, n_explore, hertz, active, n_final=N_FINAL):
         plan = _Plan(prep.starts, prep.free, jnp.asarray(_N_START), jnp.asarray(n_explore), jnp.asarray(n_final),
-                     jnp.asarray(False), jnp.asarray(hertz), jnp.asarray(active))
+                     jnp.asarray(False), jnp.asarray(hertz), jnp.asarray(active), jnp.asarray(jnp.inf))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
     def plan_g0(st, ends):
         # a refit (a profile point, a model of ``fit``'s extras) goes on for ``core``'s final iterations, no more
         given = _Plan(start.theta.astype(dtype), start.free, jnp.asarray(1), jnp.asarray(1),
-                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True))
+                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True),
+                      jnp.asarray(jnp.inf))
         gauss = own_starts(prep_g, OWN_STARTS["gaussian"], False, True)
         scout = own_starts(prep_g, N_STARTS, False, True, n_final=0)
         plan = jax.tree.map(lambda a, b: jnp.where(window == 1, a, b), gauss, scout)
         return jax.tree.map(lambda a, b: jnp.where(refit, a, b), given, plan)
 
+    def give_up_against(st, k):
+        """Where the window is chosen, a solve that only competes with stage ``k``'s fit (which reached its
+        chi-square, and whose optimum is lower still) need go on only as long as it could still win."""
+        bound = GIVE_UP_FACTOR * (jnp.sum(jnp.square(st.r[k])) + WINDOW_DECISIVE * jnp.maximum(bin_factor, 1.0)
+                                  * jnp.maximum(st.redchi[k], 1.0))
+        return jnp.where((window == 0) & jnp.isfinite(bound), bound, jnp.inf)
+
     def plan_h1(st, ends):
         thetas = ends.at[:, _I_A].add(np.log(HERTZ_PER_GAUSS))
         active = ~refit & (window != 1)
         plan = _Plan(thetas, prep_h.free, jnp.asarray(1), jnp.asarray(N_STARTS), jnp.asarray(N_FINAL),
-                     jnp.asarray(False), jnp.asarray(True), active)
+                     jnp.asarray(False), jnp.asarray(True), active, give_up_against(st, G0))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
     def gauss_from(st, k, active):
         theta = st.theta[k].at[_I_A].add(-np.log(HERTZ_PER_GAUSS))
-        return from_point(theta, st.free[k], False, active & ~refit & (window == 0) & _compared(st, k))
+        return from_point(theta, st.free[k], False, active & ~refit & (window == 0) & _compared(st, k),
+                          give_up_against(st, k))
 
     def plan_gw1(st, ends):
         return gauss_from(st, H1, True)
@@ -500,7 +519,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
             plan = planner(st, ends)
             return _Plan(plan.starts.astype(dtype), plan.free.astype(bool), *(jnp.asarray(x, jnp.int32) for x in
                          (plan.n_start, plan.n_explore, plan.n_final)),
-                         *(jnp.asarray(x, bool) for x in (plan.skip, plan.hertz, plan.active)))
+                         *(jnp.asarray(x, bool) for x in (plan.skip, plan.hertz, plan.active)),
+                         jnp.asarray(plan.give_up, dtype))
         return run
 
     planners = [typed(f) for f in (plan_g0, plan_h1, plan_gw1, plan_hx, plan_gw2, plan_gf, plan_t2, plan_t4, plan_da,
@@ -513,7 +533,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         theta, r, jac, model, last, n_iter = levenberg_marquardt(
             _either, plan.starts, (data_g, data_h, coef, plan.hertz), plan.free, prep_g.first, n_start=plan.n_start,
             n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
-            stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL)
+            stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL, give_up_chi2=plan.give_up)
         _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(theta, r, jac, plan.free)
         finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
         converged = finite & ((decrement < DECREMENT_TOL) | settled_physics(step_sigma, plan.free))

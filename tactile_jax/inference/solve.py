@@ -13,7 +13,10 @@ falls (Nielsen's damping update), and evaluates the residuals and the
 Jacobian once, at the trial point. The final iterations end early once the
 Gauss-Newton decrement still to go is below ``stop_tol``: a refit from near
 an optimum (a profile point, a held slip direction) takes a few iterations
-instead of the full count.
+instead of the full count. A solve that is only needed to beat a given
+chi-square can also give up (``give_up_chi2``): once its own chi-square, less
+that decrement, stays above the bound, more iterations cannot change the
+decision it serves.
 
 Why not optimistix: its solvers stop per problem too, but with a per-step
 overhead of about 1 ms per record on a CPU, and the multi-start schedule
@@ -37,7 +40,7 @@ __all__ = ["levenberg_marquardt"]
 
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
-                        stop_tol=None, count: bool = False, soft_after=None, soft_tol=None):
+                        stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
@@ -48,7 +51,9 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     was given). stop_tol: the final iterations end early once the Gauss-Newton decrement still to go (chi2
     units, ``lsq.fit_statistics``'s) is below it (None: they all run); under ``vmap`` each record keeps the
     point where it stopped. soft_after, soft_tol: after this many final iterations (traced), a decrement
-    below ``soft_tol`` ends them too (a fit that has converged, though not to ``stop_tol``). A negative
+    below ``soft_tol`` ends them too (a fit that has converged, though not to ``stop_tol``). give_up_chi2:
+    (traced; with ``stop_tol`` and ``soft_after``) after ``soft_after`` final iterations, the solve also ends
+    once |r|^2 less the decrement still to go is above it (inf: never). A negative
     ``n_final`` with ``skip_starts`` runs nothing (the starts' first row is returned, with zero residuals).
     count: also return how many iterations ran (evaluations of the residuals and their Jacobian).
     """
@@ -99,7 +104,10 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
             dec = gauss_newton_decrement(new[1], new[2], free)
             done = (k >= explore) & (dec < stop_tol)
             if soft_after is not None:
-                done = done | (k >= explore + soft_after) & (dec < soft_tol)
+                late = k >= explore + soft_after
+                done = done | late & (dec < soft_tol)
+                if give_up_chi2 is not None:
+                    done = done | late & (jnp.sum(jnp.square(new[1])) - dec > give_up_chi2)
         return (*new, lam, nu), best, last, jnp.asarray(done)
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
