@@ -152,7 +152,8 @@ class Analysis(NamedTuple):
 
     summary: the kept fit (``core.Summary``; its ``data`` the Gaussian window's, ``data_h`` the Hertz
     disk's). window: index into ``WINDOWS``; window_margin: chi-square margin in units of the
-    correlated-bin scale (positive favours the Hertz disk; nan where not compared); window_weight: the
+    correlated-bin scale (positive favours the Hertz disk; nan where not compared; where the losing
+    window's solve gave up, its chi-square where it stopped); window_weight: the
     kept window's Akaike weight (1 where decisive); window_other, window_other_sd (3,): the other
     window's log vx, log vy, log a and their errors (where averaged); explored: the Hertz disk's own
     starts replaced the first Hertz fit; explored_chi2 (2,): the first fit's and theirs; fresh: the
