@@ -48,6 +48,25 @@ def test_the_stages_report_what_ran():
     assert kept
 
 
+def test_a_refit_keeps_the_stage_it_ran_under_either_window():
+    """A refit (profiles, model selection) runs G0 alone from the given start under the given window: the fit
+    kept is G0's under the Gaussian window and under the Hertz disk alike (not the Hertz stage, which is off)."""
+    import types
+
+    n = len(an.STAGES)
+    active = np.zeros(n, bool)
+    active[an.G0] = True
+    st = types.SimpleNamespace(chi2=np.where(active, 10.0, np.inf), redchi=np.where(active, 1.0, np.inf),
+                               status=np.where(active, 0, 4), active=active, hertz=np.zeros(n, bool))
+    for window in (1, 2):
+        st.hertz[an.G0] = window == 2
+        w = an._window_fit(st, an.Choices(window=window, texture=1, direction=1, test_window=False, refit=True), 2.0)
+        assert int(w.index) == an.G0 and bool(w.hertz) == (window == 2)
+    # the analysis itself, with the Hertz window given, keeps the Hertz stage
+    st.active[an.H1], st.chi2[an.H1], st.status[an.H1], st.hertz[an.H1] = True, 9.0, 0, True
+    assert int(an._window_fit(st, an.Choices(window=2), 2.0).index) == an.H1
+
+
 @pytest.mark.slow
 def test_a_vmapped_chunk_on_the_cpu_equals_the_single_record_program():
     """The batched path (``jax.vmap`` over a chunk of 4 different records) on the CPU gives each record's
