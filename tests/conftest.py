@@ -15,9 +15,19 @@ os.environ["TACTILE_JAX_CACHE"] = ""
 # loop emitters at LLVM optimisation level 1 compile the Gaussian window's analysis program in 13 s against
 # 27 s with the default fusion emitters, and run it a third slower (0.57 s against 0.42 s warm); the default
 # tier takes 25 % less time with them. Users' programs keep XLA's defaults. Set before jax starts its
-# backend (spawned worker processes inherit it).
-os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_use_fusion_emitters=false",
-                                    "--xla_backend_optimization_level=1"]).strip()
+# backend (pytest-xdist's workers inherit it); an XLA that does not know the flags would abort at its start,
+# so a child process tries them first (once, in the controlling process).
+_FAST_COMPILE = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=1"
+if "TACTILE_JAX_TEST_XLA_FLAGS" not in os.environ:
+    import subprocess  # noqa: E402
+    import sys  # noqa: E402
+
+    _flags = " ".join([os.environ.get("XLA_FLAGS", ""), _FAST_COMPILE]).strip()
+    _probe = subprocess.run([sys.executable, "-c", "import jax; jax.devices('cpu')"], capture_output=True,
+                            env={**os.environ, "XLA_FLAGS": _flags})
+    os.environ["TACTILE_JAX_TEST_XLA_FLAGS"] = "1"
+    if _probe.returncode == 0:
+        os.environ["XLA_FLAGS"] = _flags
 
 import contextlib  # noqa: E402
 import shutil  # noqa: E402
