@@ -213,7 +213,10 @@ def test_the_solver_keeps_the_best_start_and_holds_the_first_stage_mask():
     assert all(c <= float(np.sum(np.square(_toy(s0, x)[0]))) for c, s0 in zip(cost, starts))
 
 
-def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
+def _counted_solve(traced: str, **fixed):
+    """``solve(start, value)``: the toy's final iterations from ``start`` (30 at most) as one program, with
+    ``levenberg_marquardt``'s keyword ``traced`` set to ``value`` and ``fixed`` as given; returns theta and
+    how many evaluations of the residuals it took."""
     x = jnp.linspace(0.0, 3.0, 60)
     free = jnp.array([True, True])
     calls = []
@@ -223,16 +226,21 @@ def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
         return _toy(theta, x)
 
     @jax.jit
-    def run(start, stop_tol):           # one program: a tolerance of 0 never stops
+    def run(start, value):
         return levenberg_marquardt(counted, start[None], x, free, free, n_start=1, n_first=0, n_final=30,
-                                   skip_starts=True, stop_tol=stop_tol)[0]
+                                   skip_starts=True, **fixed, **{traced: value})[0]
 
-    def solve(start, stop_tol):
+    def solve(start, value):
         calls.clear()
-        theta = np.asarray(run(jnp.asarray(start, float), stop_tol))
+        theta = np.asarray(run(jnp.asarray(start, float), value))
         jax.effects_barrier()
         return theta, len(calls)
 
+    return solve
+
+
+def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
+    solve = _counted_solve("stop_tol")          # one program: a tolerance of 0 never stops
     full, n_full = solve([2.9, 0.4], 0.0)
     early, n_early = solve([2.9, 0.4], 1e-10)
     assert n_full == 31 and n_early < 15
@@ -245,25 +253,7 @@ def test_the_final_iterations_stop_once_the_decrement_is_below_the_tolerance():
 def test_a_solve_gives_up_once_it_cannot_beat_the_bound():
     """``give_up_chi2``: after ``soft_after`` final iterations a solve whose chi-square, less the decrement still
     to go, stays above the bound ends (a wrong basin's local minimum); one that can go below it runs on."""
-    x = jnp.linspace(0.0, 3.0, 60)
-    free = jnp.array([True, True])
-    calls = []
-
-    def counted(theta, x):
-        jax.debug.callback(lambda: calls.append(1))
-        return _toy(theta, x)
-
-    @jax.jit
-    def run(start, bound):
-        return levenberg_marquardt(counted, start[None], x, free, free, n_start=1, n_first=0, n_final=30,
-                                   skip_starts=True, stop_tol=0.0, soft_after=3, soft_tol=0.0, give_up_chi2=bound)[0]
-
-    def solve(start, bound):
-        calls.clear()
-        theta = np.asarray(run(jnp.asarray(start, float), bound))
-        jax.effects_barrier()
-        return theta, len(calls)
-
+    solve = _counted_solve("give_up_chi2", stop_tol=0.0, soft_after=3, soft_tol=0.0)
     wrong, n_wrong = solve([1.0, 0.0], 100.0)         # a local minimum of chi2 ~ 1e5
     assert n_wrong == 4 and abs(wrong[0] - 3.0) > 0.5
     right, n_right = solve([2.9, 0.4], 100.0)          # reaches chi2 ~ 0: runs its 30 iterations

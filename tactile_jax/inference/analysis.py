@@ -208,7 +208,7 @@ class _Plan(NamedTuple):
     skip: jax.Array
     hertz: jax.Array
     active: jax.Array
-    give_up: jax.Array
+    give_up: jax.Array = np.inf         # |r|^2 above which the solve ends early (``levenberg_marquardt``)
 
 
 def _either(theta, args):
@@ -421,9 +421,9 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
 
     def off(hertz=False):       # no iteration at all
         return _Plan(prep_g.starts, prep_g.free, jnp.asarray(1), jnp.asarray(1), jnp.asarray(-1), jnp.asarray(True),
-                     jnp.asarray(hertz), jnp.asarray(False), jnp.asarray(jnp.inf))
+                     jnp.asarray(hertz), jnp.asarray(False))
 
-    def from_point(theta, free, hertz, active, give_up=jnp.inf):
+    def from_point(theta, free, hertz, active, give_up=np.inf):
         """A solve from one point, or a stage switched off."""
         plan = _Plan(jnp.broadcast_to(theta, prep_g.starts.shape), free, jnp.asarray(1), jnp.asarray(1),
                      jnp.asarray(N_FINAL), jnp.asarray(True), jnp.asarray(hertz), jnp.asarray(active),
@@ -432,14 +432,13 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
 
     def own_starts(prep, n_explore, hertz, active, n_final=N_FINAL):
         plan = _Plan(prep.starts, prep.free, jnp.asarray(_N_START), jnp.asarray(n_explore), jnp.asarray(n_final),
-                     jnp.asarray(False), jnp.asarray(hertz), jnp.asarray(active), jnp.asarray(jnp.inf))
+                     jnp.asarray(False), jnp.asarray(hertz), jnp.asarray(active))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
     def plan_g0(st, ends):
         # a refit (a profile point, a model of ``fit``'s extras) goes on for ``core``'s final iterations, no more
         given = _Plan(start.theta.astype(dtype), start.free, jnp.asarray(1), jnp.asarray(1),
-                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True),
-                      jnp.asarray(jnp.inf))
+                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True))
         gauss = own_starts(prep_g, OWN_STARTS["gaussian"], False, True)
         scout = own_starts(prep_g, N_STARTS, False, True, n_final=0)
         plan = jax.tree.map(lambda a, b: jnp.where(window == 1, a, b), gauss, scout)

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import TactileInputError
 from .estimate import (
+    _onesided_factor as _onesided,
     adjacent_bin_factor,
     bin_rho,
     cached_window,
@@ -98,15 +99,6 @@ def _response(coeffs, omega, fs):
     ``prewhiten.filter_response``, for the same reason as ``burg_ar``)."""
     k = np.arange(coeffs.shape[-1])
     return coeffs @ np.exp(-1j * np.outer(k, omega / fs))
-
-
-def _onesided(nfft: int) -> np.ndarray:
-    """(nfft // 2 + 1,) the one-sided spectrum's factor: 2, with 1 at DC and at the Nyquist bin of an even nfft."""
-    onesided = np.full(nfft // 2 + 1, 2.0)
-    onesided[0] = 1.0
-    if nfft % 2 == 0:
-        onesided[-1] = 1.0
-    return onesided
 
 
 def _groups(n_seg: int) -> tuple[np.ndarray, np.ndarray]:
