@@ -69,6 +69,19 @@ def test_bad_settings_are_one_line_errors(kwargs, words):
     assert "\n" not in str(err.value)
 
 
+def test_a_steady_misfit_is_no_reason_to_analyse_again_and_a_rise_is():
+    """A lumpy window's steady misfit (reduced chi-square 2-3 throughout) does not call for a new analysis;
+    a misfit that rises well above the held level does, and an acquisition that misfits (one across a change)
+    does not lift the level that later updates are judged by."""
+    from tactile_jax.track.tracker import misfit_rose
+
+    steady = [2.4, 2.1, 2.9, 2.6, 2.2]
+    assert not misfit_rose(3.1, steady) and not misfit_rose(3.9, steady)
+    assert misfit_rose(7.9, steady) and misfit_rose(4.5, [1.1, 1.3, 0.9])
+    assert misfit_rose(20.0, [11.3, 23.8, 22.2])            # the level is at most core.POOR_FIT_REDCHI
+    assert not misfit_rose(1.9, []) and misfit_rose(2.1, [])
+
+
 def test_bad_blocks_are_one_line_errors():
     tracker = Tracker(FS, source="arm.h5")
     with pytest.raises(TactileInputError, match=r"arm.h5.*shape \(4, n\)"):
@@ -129,7 +142,9 @@ def test_tracking_a_slip_on_the_gaussian_program():
     assert any(r["status"] == "ok" for r in inside)
     for r in inside:
         assert abs(r["vx"] - 0.04) < 0.01 * 0.04 and abs(r["a"] - 1.5e-3) < 0.02 * 1.5e-3
-    assert {r["update"] for r in inside} == {"analysis", "step"}
+    # one analysis acquires the slide (its window may reach into the crossfade); updates follow it
+    assert {r["update"] for r in rows if r["vx"] is not None} == {"analysis", "step"}
+    assert sum(r["update"] == "step" for r in inside) >= len(inside) - 1
     tracker = Tracker(rec.fs, window=2.0, hop=0.25, options=options)
     again = []
     for block in np.array_split(rec.signals, 13, axis=1):

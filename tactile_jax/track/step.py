@@ -154,13 +154,13 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
     return Update(e, theta, moved, stale, taken, new, b.n_band, b.speed0)
 
 
-def state_from(record: Record, settings: Settings, theta, free, jac=None) -> TrackState:
-    """The ``TrackState`` of an acquisition's fit (``theta``, ``free`` of the analysis on ``record``): its knots
-    and prior centre as the analysis had them; ``jac``: None to compute it at the first update."""
-    prep = prepare(record, settings, False)
-    data = prep.data
+def state_from(record: Record, settings: Settings, theta, free, log_knots, prior_center, jac=None) -> TrackState:
+    """The ``TrackState`` of an acquisition's fit (``theta``, ``free`` of the analysis on ``record``, with the
+    texture knots and prior centre of its ``JointData``); ``jac``: None to compute it at the first update."""
+    prep = prepare(record, settings, False, pair_fits=False)
+    data = prep.data._replace(log_k_knots=log_knots, prior_center=prior_center)
     r_shape = jax.eval_shape(lambda t: residuals_and_model(t, (data, settings.hertz))[0], theta).shape
     p = theta.shape[0]
-    return TrackState(jnp.asarray(theta), jnp.asarray(free, bool), data.log_k_knots, data.prior_center,
+    return TrackState(jnp.asarray(theta), jnp.asarray(free, bool), jnp.asarray(log_knots), jnp.asarray(prior_center),
                       jnp.zeros(r_shape + (p,), theta.dtype) if jac is None else jac, prep.band.i0, data.mask_xy,
                       jnp.zeros((), jnp.int32), jnp.full((), jnp.inf, theta.dtype))

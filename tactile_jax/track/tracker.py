@@ -4,9 +4,13 @@ Every ``hop`` seconds the tracker fits the last ``window`` seconds. The first
 window in which the probes hear a moving texture is analysed in full (the
 program ``fit`` runs: window, texture and direction chosen by the data); each
 later window is one update from the last one's optimum (``track.step``) under
-those choices. After ``REACQUIRE_AFTER`` updates in a row that are poor or do
-not settle, or a window with no band, the next window is analysed in full
-again: the choices held may no longer describe the slip.
+those choices. After ``REACQUIRE_AFTER`` updates in a row that do not settle
+or whose misfit rose (a poor fit with a reduced chi-square over ``MISFIT_RISE``
+times the level of the updates since the acquisition), or a window with no
+band, the next window is analysed again: the choices held may no longer
+describe the slip (a steady misfit is not such a sign). An analysis whose
+window may reach across the slip's start or such a change is done again,
+once, when the window lies past it.
 
 Before any fit, each window's segments are tested for a moving texture
 (``activity``): the shallow probes' low-frequency power against their
@@ -35,7 +39,7 @@ from ..errors import TactileInputError
 from ..inference import run
 from ..io.recording import SENSOR_DEFAULT, SENSOR_FROM_FILE
 from ..inference.analysis import DIRECTIONS, WINDOWS, summary_of
-from ..inference.core import Located, Summary
+from ..inference.core import POOR_FIT_REDCHI, Located, Summary
 from ..inference.fit import result_of
 from ..inference.options import FitOptions, analysis_settings, choices_of, known_gains, settings_of
 from ..inference.result import FitResult, result_from_summary
@@ -45,7 +49,8 @@ from ..spectral.segments import AR_ORDER, segments
 from ..status import Status
 from . import step as step_mod
 
-__all__ = ["Tracker", "track_recording", "activity", "Activity", "default_nperseg", "WINDOW_S", "HOP_S", "MOVING_DB", "REACQUIRE_AFTER"]
+__all__ = ["Tracker", "track_recording", "activity", "Activity", "default_nperseg", "misfit_rose", "WINDOW_S", "HOP_S",
+           "MOVING_DB", "REACQUIRE_AFTER", "MISFIT_RISE", "MISFIT_MEMORY"]
 
 #: default window and hop, seconds
 WINDOW_S = 2.0
@@ -53,8 +58,14 @@ HOP_S = 0.1
 #: a segment hears a moving texture where its shallow probes' mean power over the lowest quarter of the bins
 #: is this far (dB) above their high-frequency floor (white noise: 0 dB, scatter below 1 dB)
 MOVING_DB = 6.0
-#: updates in a row that are poor or not settled before the window is analysed in full again
+#: updates in a row that do not settle, or whose misfit has risen, before the window is analysed in full again
 REACQUIRE_AFTER = 3
+#: an update's misfit has risen where it is poor and its reduced chi-square exceeds this many times the
+#: level the held choices have had: the median over the updates since the acquisition (``MISFIT_MEMORY`` of
+#: them at most), taken between 1 and ``core.POOR_FIT_REDCHI`` (an acquisition across a change of the slip
+#: misfits: its level must not excuse the poor updates after it)
+MISFIT_RISE = 2.0
+MISFIT_MEMORY = 20
 #: time-half-bandwidth of the window's DPSS tapers (5 tapers: the jackknife's groups): a 2 s
 #: window resolves 2 Hz, where Welch segments that leave six groups resolve 4 Hz (Hann's main lobe)
 NW = 4.0
@@ -106,24 +117,28 @@ def activity(window, nperseg: int) -> Activity:
     return Activity(moving, excess, verdict)
 
 
+def misfit_rose(redchi: float, history) -> bool:
+    """Whether a poor update's reduced chi-square ``redchi`` rose above the level of the updates held so far
+    (``history``, their reduced chi-squares): over ``MISFIT_RISE`` times their median, taken between 1 and
+    ``core.POOR_FIT_REDCHI``."""
+    level = float(np.clip(np.median(history), 1.0, POOR_FIT_REDCHI)) if len(history) else 1.0
+    return bool(redchi > MISFIT_RISE * level)
+
+
 class _Mask(NamedTuple):
     mask_xy: np.ndarray
 
 
 @functools.cache
 def _update_program():
-    # jit, not ``run._exported``: the exported call costs 10 ms more per update (measured); the persistent
-    # compilation cache keeps the compiled program, and tracing it takes seconds
-    import jax
-
-    return jax.jit(step_mod.update)
+    # kept in the persistent cache with its traced form (``run._exported``): a new process then skips the
+    # seconds of tracing the update and the state programs
+    return run._exported(step_mod.update, "track_update", (step_mod.TrackState, step_mod.Update))
 
 
 @functools.cache
 def _state_program():
-    import jax
-
-    return jax.jit(step_mod.state_from)
+    return run._exported(step_mod.state_from, "track_state", (step_mod.TrackState,))
 
 
 @dataclasses.dataclass
@@ -135,7 +150,10 @@ class _Held:
     window: str
     texture: str
     direction: str
+    redchi: list = dataclasses.field(default_factory=list)
     bad: int = 0
+    bad_since: float = math.nan     # the end (s) of the first window of the run of ``bad`` updates
+    recheck_at: float | None = None     # a window that starts after this time (s) is analysed again, once
 
 
 class Tracker:
@@ -196,6 +214,7 @@ class Tracker:
         self._seen = 0                      # samples pushed
         self._next_end = self.n_window      # the next window ends at this sample
         self._held: _Held | None = None
+        self._edge: float | None = None     # a slip's start or change (s) that the next analysis may straddle
         self._by_window: dict = {}
         self.rows: list[dict] = []
 
@@ -240,6 +259,11 @@ class Tracker:
         rec = self._record(window)
         act = activity(window, self.nperseg)
         kind, moved = "none", None
+        start_s = t - 0.5 * self.window_s
+        if act.verdict != "moving":
+            self._edge = None
+        if self._held is not None and self._held.recheck_at is not None and start_s >= self._held.recheck_at:
+            self._held = None               # the window now lies past the start or change the analysis straddled
         if act.verdict == "still":
             self._held = None
             res = FitResult(status=Status.NO_SLIP, window=self._settings.window,
@@ -249,14 +273,15 @@ class Tracker:
         elif act.verdict == "start":
             # a window that is partly still holds two scenes: the full analysis waits for one that slips throughout
             self._held = None
-            when = t - 0.5 * self.window_s + self._quiet_until(act)
+            when = start_s + self._quiet_until(act)
+            self._edge = when
             res = FitResult(status=Status.SLIP_START, window=self._settings.window,
                             message=f"a slip starts inside this window, after t = {when:.2f} s: estimates follow "
                                     "once a window lies inside the slip")
         elif self._held is None:
-            res, kind = self._acquire(rec), "analysis"
+            res, kind = self._acquire(rec, start_s), "analysis"
         else:
-            res, kind, moved = self._step(rec)
+            res, kind, moved = self._step(rec, t)
         if act.verdict == "stop" and res.status not in (Status.NO_SLIP, Status.SLIP_START):
             res.status = Status.SLIP_STOP
             res.message = "; ".join(m for m in ("the slip ends inside this window: its values mix the slip and the "
@@ -279,7 +304,7 @@ class Tracker:
         step = self.nperseg // 2
         return ((first - 1) * step + self.nperseg) / self.fs if first > 0 else 0.0
 
-    def _acquire(self, rec) -> FitResult:
+    def _acquire(self, rec, start_s: float) -> FitResult:
         """The full analysis of one window: its choices are held by the updates that follow."""
         a = run.analyse_one(rec, self._settings, self._choices)
         s = summary_of(a)
@@ -291,8 +316,15 @@ class Tracker:
         if res.status in (Status.OK, Status.POOR_FIT, Status.NOT_CONVERGED):
             window = WINDOWS[int(a.window)]
             settings = self._window_settings(window)
-            state = _state_program()(run._as_jnp(rec), settings, s.theta, s.free)
-            self._held = _Held(state, settings, window, texture_name(s.free), DIRECTIONS[int(a.direction)])
+            state = _state_program()(run._as_jnp(rec), settings, s.theta, s.free, s.data.log_k_knots,
+                                     s.data.prior_center)
+            # an analysis whose window may reach across the slip's start or a change (its choices then describe
+            # neither side: a minor speed of the start's transient held oblique for seconds) is done again once
+            # the window lies past it
+            edge = self._edge if self._edge is not None and self._edge > start_s else None
+            self._held = _Held(state, settings, window, texture_name(s.free), DIRECTIONS[int(a.direction)],
+                               [float(s.redchi)], recheck_at=edge)
+        self._edge = None
         return res
 
     def _window_settings(self, window: str):
@@ -305,7 +337,7 @@ class Tracker:
             self._by_window[window] = run._as_jnp(settings)
         return self._by_window[window]
 
-    def _step(self, rec):
+    def _step(self, rec, t: float):
         held = self._held
         u = _update_program()(rec, held.settings, held.state, False)
         held.state = u.state
@@ -325,12 +357,23 @@ class Tracker:
             notes = [m for m in res.message.split("; ") if m and not m.startswith("the solver did not converge")]
             res.message = "; ".join([f"the update moved a parameter by {moved:.1f} sigma: not settled (the slip is "
                                      "changing, or the choices held no longer describe it)"] + notes)
-        # poor or unsettled updates in a row: the choices held may no longer describe the slip. A steady misfit
-        # (a lumpy window) re-analysed misfits alike, yet holding the choices through it gave fewer right
-        # updates on the changing paths of benchmarks/track.py (23 of 63 against 34)
-        held.bad = 0 if res.status == Status.OK else held.bad + 1
+        # updates in a row that do not settle, or whose misfit rose well above the level the held choices have
+        # had: those choices may no longer describe the slip. A steady misfit (a lumpy window: all its tapers
+        # hear the same few texture modes) is no reason to re-analyse: a full analysis misfits it alike.
+        # Re-analysing after any three poor updates gave as many right updates on benchmarks/track.py (118 of
+        # the paths' 190 windows inside a piece, against 116; 38 % of the constant slips' windows, against
+        # 38.5 %) at 2.5 times the cost of a 30 s file end to end
+        redchi = float(e.redchi)
+        rose = res.status == Status.POOR_FIT and misfit_rose(redchi, held.redchi)
+        held.bad = held.bad + 1 if (res.status == Status.NOT_CONVERGED or rose) else 0
+        if held.bad == 1:
+            held.bad_since = t + 0.5 * self.window_s
+        if np.isfinite(redchi):
+            held.redchi = (held.redchi + [redchi])[-MISFIT_MEMORY:]
         if held.bad >= REACQUIRE_AFTER or res.status in (Status.NO_BAND, Status.FAILED):
             self._held = None               # the next window is analysed in full
+            # the change entered the windows about a hop before the first of them ended
+            self._edge = held.bad_since - self.hop_s if held.bad >= REACQUIRE_AFTER else None
         return res, "step", moved
 
 
