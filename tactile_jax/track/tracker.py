@@ -18,7 +18,8 @@ own high-frequency floor. A window with no moving segment is ``no_slip`` (no
 values: a still contact is never reported as a speed fitted into noise); a
 window whose first segments are still and last ones moving is ``slip_start`` (no
 values: the full analysis waits for a window that lies inside the slip), the
-reverse ``slip_stop`` (the update's values, which mix the two).
+reverse ``slip_stop`` (the update's values, which mix the two, while the
+updates go on; none once they stopped: such a window gets no analysis).
 
 Rows hold ``t`` (the window's centre, s), ``window_s``, the columns ``fit``
 writes (vx, vx_err, vy, vy_err, a, a_err, status, message, ...) and
@@ -66,6 +67,10 @@ REACQUIRE_AFTER = 3
 #: misfits: its level must not excuse the poor updates after it)
 MISFIT_RISE = 2.0
 MISFIT_MEMORY = 20
+#: the fraction of a window that a change of the slip fills when the updates' misfit rises: the change is
+#: placed that far before the end of the first window of the run, and the window is analysed again once it
+#: lies past it
+CHANGE_SEEN = 0.5
 #: time-half-bandwidth of the window's DPSS tapers (5 tapers: the jackknife's groups): a 2 s
 #: window resolves 2 Hz, where Welch segments that leave six groups resolve 4 Hz (Hann's main lobe)
 NW = 4.0
@@ -278,15 +283,19 @@ class Tracker:
             res = FitResult(status=Status.SLIP_START, window=self._settings.window,
                             message=f"a slip starts inside this window, after t = {when:.2f} s: estimates follow "
                                     "once a window lies inside the slip")
+        elif act.verdict == "stop" and self._held is None:
+            # a window in which the slip ends holds two scenes; with no fit to go on from, it gets no analysis
+            res = FitResult(status=Status.SLIP_STOP, window=self._settings.window,
+                            message="the slip ends inside this window: estimates follow once a window lies "
+                                    "inside a slip")
         elif self._held is None:
             res, kind = self._acquire(rec, start_s), "analysis"
         else:
             res, kind, moved = self._step(rec, t)
-        if act.verdict == "stop" and res.status not in (Status.NO_SLIP, Status.SLIP_START):
+        if act.verdict == "stop" and kind == "step":
             res.status = Status.SLIP_STOP
             res.message = "; ".join(m for m in ("the slip ends inside this window: its values mix the slip and the "
                                                 "still part", res.message) if m)
-            self._held = None
         res.sensor = self.sensor_name
         res.curvature_radius = self.curvature_radius
         row = res.to_record()
@@ -361,8 +370,8 @@ class Tracker:
         # had: those choices may no longer describe the slip. A steady misfit (a lumpy window: all its tapers
         # hear the same few texture modes) is no reason to re-analyse: a full analysis misfits it alike.
         # Re-analysing after any three poor updates gave as many right updates on benchmarks/track.py (118 of
-        # the paths' 190 windows inside a piece, against 116; 38 % of the constant slips' windows, against
-        # 38.5 %) at 2.5 times the cost of a 30 s file end to end
+        # the paths' 190 windows inside a piece, as this rule with the analyses done again past a change; 38 %
+        # of the constant slips' windows, against 40 %) at 2.6 times the cost of a 30 s file end to end
         redchi = float(e.redchi)
         rose = res.status == Status.POOR_FIT and misfit_rose(redchi, held.redchi)
         held.bad = held.bad + 1 if (res.status == Status.NOT_CONVERGED or rose) else 0
@@ -372,8 +381,8 @@ class Tracker:
             held.redchi = (held.redchi + [redchi])[-MISFIT_MEMORY:]
         if held.bad >= REACQUIRE_AFTER or res.status in (Status.NO_BAND, Status.FAILED):
             self._held = None               # the next window is analysed in full
-            # the change entered the windows about a hop before the first of them ended
-            self._edge = held.bad_since - self.hop_s if held.bad >= REACQUIRE_AFTER else None
+            # the misfit rises once the new slip fills about ``CHANGE_SEEN`` of the window
+            self._edge = held.bad_since - CHANGE_SEEN * self.window_s if held.bad >= REACQUIRE_AFTER else None
         return res, "step", moved
 
 
