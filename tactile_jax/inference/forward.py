@@ -99,12 +99,19 @@ def _half_bins(log_abs, sign):
     return jnp.stack(logs), jnp.stack(signs)
 
 
-def _window_average(half, sign, weight, idx, log_kernel):
-    """(C, L) each bin's kernel average of sign exp(half) times ``weight`` (C, H) (real or complex) at ``idx``
-    (L, J): (log of its magnitude scale, the average relative to it)."""
-    terms = log_kernel + half[:, idx]
+def _windows(x, n_fit: int, n_kernel: int):
+    """(..., H) on the half-bin grid -> (..., L, J): each bin's kernel offsets (``half_bin_index``), as J
+    strided slices (a gather's tangents, one per parameter in the Jacobian, were copied and transposed)."""
+    return jnp.stack([x[..., j:j + 2 * n_fit - 1:2] for j in range(n_kernel)], axis=-1)
+
+
+def _window_average(half, sign, weight, log_kernel, n_fit):
+    """(C, L) each bin's kernel average of sign exp(half) times ``weight`` (C, H) (real or complex) over its
+    kernel offsets: (log of its magnitude scale, the average relative to it)."""
+    n_kernel = log_kernel.shape[0]
+    terms = log_kernel + _windows(half, n_fit, n_kernel)
     top = jnp.max(terms, axis=-1)
-    return top, jnp.sum(jnp.exp(terms - top[..., None]) * (sign * weight)[:, idx], axis=-1)
+    return top, jnp.sum(jnp.exp(terms - top[..., None]) * _windows(sign * weight, n_fit, n_kernel), axis=-1)
 
 
 def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
@@ -125,9 +132,8 @@ def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
     # reduced chi-squares of 1.2-2.0; on the half bins 0.9-1.2 and vy within its error: benchmarks/windows.py)
     half, half_sign = (dens, sign) if hertz is not None else _half_bins(dens, sign)   # (10, H)
     n_fit = data.omega.shape[0]
-    idx = half_bin_index(n_fit, data.log_kernel.shape[0])
     white = jnp.exp(jnp.repeat(data.white_half, 3, axis=0))                          # |A|^2 per pair entry
-    top, avg = _window_average(half[:6], half_sign[:6], white, idx, data.log_kernel)
+    top, avg = _window_average(half[:6], half_sign[:6], white, data.log_kernel, n_fit)
     auto = top + jnp.log(jnp.maximum(jnp.abs(avg), tiny(top))) - jnp.repeat(data.white_bin, 3, axis=0)
     pair = auto.reshape(2, 3, n_fit)                                                 # [pair][11, 12, 22]
     s12 = jnp.where(avg[1::3] < 0, -1.0, 1.0)                                        # (2, L) the sign of S12
@@ -137,7 +143,7 @@ def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
     b12 = pair[:, 1]
     b22 = jnp.logaddexp(pair[:, 2], noise[:, 1:])
     # x-y entries: complex weights conj(A_x) A_y on the signed grid
-    top, avg = _window_average(half[6:], half_sign[6:], data.xy_white_half, idx, data.log_kernel)   # (4, L)
+    top, avg = _window_average(half[6:], half_sign[6:], data.xy_white_half, data.log_kernel, n_fit)   # (4, L)
     ref = b11[0]
     cxy = avg / data.xy_white_bin * jnp.exp(top - ref)                               # (4, L), / S_x1x1
     eps = 8.0 * jnp.finfo(b22.dtype).eps
