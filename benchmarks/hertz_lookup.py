@@ -7,7 +7,7 @@ median of ``--repeats`` calls:
 
 - lookup: ``model.hertz.hertz_factors`` at the fit's nodes, with the table
   lookup in chunks of ``hertz.CHUNK`` nodes (the package) and in one chunk (every
-  node's gathered 8 x 8 blocks at once), the ratio of the two;
+  node's gathered 4 x 4 blocks at once), the ratio of the two;
 - residuals and Jacobian: ``inference.residuals.residuals_and_model`` and its
   ``jax.jacfwd`` (what each Levenberg-Marquardt iteration evaluates), per window,
   with the ratio Hertz / Gaussian;

@@ -13,13 +13,16 @@ and it changes sign at large kappa (the disk's edge).  The y pair uses (ks, kp) 
 
 Design (the measured accuracy and cost are in docs/model.md and docs/validation.md).
 * Table (|kappa_s|, |kappa_p| up to ``kmax`` = 160, delta in [0.01, 5]): Hn on a uniform grid in
-  (kappa_s, kappa_p) (spacing ``h`` = 0.6) and in t = log(delta) (spacing ``dt`` = 0.07), as a
-  tensor-product B-spline of degree 7 (not-a-knot ends, the exact even mirror at kappa = 0).
-  Built once with numpy/scipy (3-5 s), cached on disk in float32 (38 MB) under
-  $TACTILE_JAX_CACHE or ~/.cache/tactile_jax.  Max error 9e-8 of the local amplitude.
+  (kappa_s, kappa_p) (spacing ``h`` = 0.5) and in t = log(delta) (spacing ``dt`` = 0.07), as a
+  tensor-product cubic B-spline (not-a-knot ends, the exact even mirror at kappa = 0).
+  Built once with numpy/scipy (3-5 s), cached on disk in float32 (50 MB) under
+  $TACTILE_JAX_CACHE or ~/.cache/tactile_jax.  Max error 2e-4 of the local amplitude, below the
+  1e-3 of the line integrals' quadrature (``lines.N_NODES_HERTZ``): a degree-7 table (9e-8) cost 2.7x
+  as much per lookup and moved no fitted value by more than 0.01 of its error (12 Hertz and 4
+  Gaussian scenes of ``benchmarks/windows.py``).
 * Per evaluation (one scalar a): for each probe depth, one small matrix product contracts the
   8 t-slices around delta = d / a into a 2-D coefficient slice of Hn (float64) and of
-  dHn/d(delta); then each node gathers an 8 x 8 block of both and contracts it with the B-spline
+  dHn/d(delta); then each node gathers a 4 x 4 block of both and contracts it with the B-spline
   weights and their derivatives: value and the partials in (kappa_s, kappa_p, delta) from the
   same numbers.  A ``jax.custom_jvp`` maps them to tangents of (ks, kp, depths, a).
 * Beyond the table (||kappa||_8 > kmax - 12, blended over 12 units): the leading large-kappa
@@ -83,7 +86,7 @@ __all__ = [
 TABLE_VERSION = 3
 #: table parameters: B-spline degree (odd), kappa spacing h and range kmax (dimensionless),
 #: log(delta) spacing dt and delta range, far-field blend width (kappa units)
-DEFAULT_PARAMS = dict(degree=7, h=0.6, kmax=160.0, dt=0.07, delta_min=0.01, delta_max=5.0)
+DEFAULT_PARAMS = dict(degree=3, h=0.5, kmax=160.0, dt=0.07, delta_min=0.01, delta_max=5.0)
 
 # Python scalars (weakly typed: float32 inputs stay float32)
 _2_PI = float(2.0 / np.pi)
@@ -306,7 +309,7 @@ def hertz_table(dtype=jnp.float32, cache=True, verbose=False, **params) -> Hertz
             tab = None
     if tab is None:
         tab = build_table(verbose=verbose, **par)
-        if cache:       # stored in float32 (29 MB for the defaults; rounding 6e-8 relative)
+        if cache:       # stored in float32 (rounding 6e-8 relative)
             tmp = path + f".{os.getpid()}.tmp.npz"
             np.savez(tmp, **dict(tab, coef=tab["coef"].astype(np.float32)))
             os.replace(tmp, path)
@@ -380,9 +383,9 @@ def _slices(coef, meta: _Meta, delta):
 
 
 #: nodes per chunk of the table lookup: each chunk's gathered blocks (value in float64, the delta-derivative in
-#: the table's float32: 8 x 8 x 12 bytes a node, 6 MB) stay in cache until contracted. Gathered all at once
-#: (70,000 nodes, 50 MB), the blocks went out to memory and back: 20 ms against 4.7 ms chunked for the fit's
-#: nodes on a 2-core x86-64 CPU (``python benchmarks/hertz_lookup.py``)
+#: the table's float32: 4 x 4 x 12 bytes a node, 1.5 MB) stay in cache until contracted, and a vmapped chunk of
+#: 1,024 records holds 1.6 GB of them at a time (all of a record's 46,000 nodes at once: 9 GB); on the CPU
+#: one chunk of all the nodes is 5 % faster (``python benchmarks/hertz_lookup.py``)
 CHUNK = 8192
 
 
@@ -699,7 +702,7 @@ def _all(meta: _Meta, depth_index, far_field, ks, kp, depths, a, coef):
     # blend table -> far field over m in [kmax - _BLEND, kmax], m = || (kappa_s, kappa_p) ||_8
     ns, np_ = ks_ / meta.kmax, kp_ / meta.kmax
     n8 = jnp.square(jnp.square(jnp.square(ns))) + jnp.square(jnp.square(jnp.square(np_)))
-    m = meta.kmax * jnp.power(n8, 0.125)
+    m = meta.kmax * jnp.sqrt(jnp.sqrt(jnp.sqrt(n8)))       # n8^(1/8): three roots cost less than a power
     lo = meta.kmax - _BLEND
 
     def small(val, g_s, g_p, g_d):
