@@ -40,7 +40,8 @@ __all__ = ["levenberg_marquardt"]
 
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
-                        stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None):
+                        stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None,
+                        give_up_after=None):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
@@ -52,8 +53,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     units, ``lsq.fit_statistics``'s) is below it (None: they all run); under ``vmap`` each record keeps the
     point where it stopped. soft_after, soft_tol: after this many final iterations (traced), a decrement
     below ``soft_tol`` ends them too (a fit that has converged, though not to ``stop_tol``). give_up_chi2:
-    (traced; with ``stop_tol`` and ``soft_after``) after ``soft_after`` final iterations, the solve also ends
-    once |r|^2 less the decrement still to go is above it (inf: never). A negative
+    (traced; with ``stop_tol`` and ``soft_after``) after ``give_up_after`` final iterations (None:
+    ``soft_after``), the solve also ends once |r|^2 less the decrement still to go is above it (inf: never). A negative
     ``n_final`` with ``skip_starts`` runs nothing (the starts' first row is returned, with zero residuals).
     count: also return how many iterations ran (evaluations of the residuals and their Jacobian).
     """
@@ -107,7 +108,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
                 late = k >= explore + soft_after
                 done = done | late & (dec < soft_tol)
                 if give_up_chi2 is not None:
-                    done = done | late & (jnp.sum(jnp.square(new[1])) - dec > give_up_chi2)
+                    after = soft_after if give_up_after is None else give_up_after
+                    done = done | (k >= explore + after) & (jnp.sum(jnp.square(new[1])) - dec > give_up_chi2)
         return (*new, lam, nu), best, last, jnp.asarray(done)
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
