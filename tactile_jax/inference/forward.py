@@ -101,7 +101,7 @@ def _half_bins(log_abs, sign):
 
 def _windows(x, n_fit: int, n_kernel: int):
     """(..., H) on the half-bin grid -> (..., L, J): each bin's kernel offsets (``half_bin_index``), as J
-    strided slices (a gather's tangents, one per parameter in the Jacobian, were copied and transposed)."""
+    strided slices (a gather's tangents, one per parameter in the Jacobian, are copied and transposed)."""
     return jnp.stack([x[..., j:j + 2 * n_fit - 1:2] for j in range(n_kernel)], axis=-1)
 
 

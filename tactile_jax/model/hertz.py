@@ -15,13 +15,13 @@ Design (the measured accuracy and cost are in docs/model.md and docs/validation.
 * Table (|kappa_s|, |kappa_p| up to ``kmax`` = 160, delta in [0.01, 5]): Hn on a uniform grid in
   (kappa_s, kappa_p) (spacing ``h`` = 0.5) and in t = log(delta) (spacing ``dt`` = 0.07), as a
   tensor-product cubic B-spline (not-a-knot ends, the exact even mirror at kappa = 0).
-  Built once with numpy/scipy (3-5 s), cached on disk in float32 (50 MB) under
+  Built once with numpy/scipy (about 5 s), cached on disk in float32 (50 MB) under
   $TACTILE_JAX_CACHE or ~/.cache/tactile_jax.  Max error 2e-4 of the local amplitude, below the
   1e-3 of the line integrals' quadrature (``lines.N_NODES_HERTZ``): a degree-7 table (9e-8) cost 2.7x
   as much per lookup and moved no fitted value by more than 0.01 of its error (12 Hertz and 4
   Gaussian scenes of ``benchmarks/windows.py``).
 * Per evaluation (one scalar a): for each probe depth, one small matrix product contracts the
-  8 t-slices around delta = d / a into a 2-D coefficient slice of Hn (float64) and of
+  4 t-slices around delta = d / a into a 2-D coefficient slice of Hn (float64) and of
   dHn/d(delta); then each node gathers a 4 x 4 block of both and contracts it with the B-spline
   weights and their derivatives: value and the partials in (kappa_s, kappa_p, delta) from the
   same numbers.  A ``jax.custom_jvp`` maps them to tangents of (ks, kp, depths, a).

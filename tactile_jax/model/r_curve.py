@@ -98,8 +98,8 @@ def log_g(alpha, depth, a):
 
     Its derivatives are closed-form in the same two erfcx values (d erfcx(z) / dz = 2 z erfcx(z) -
     2 / sqrt(pi)), so a tangent costs a few products: differentiated through the formula, each tangent
-    re-evaluated the erfcx series, and the joint model's three node tangents were the largest part of
-    its Jacobian.
+    would evaluate the erfcx series again, and the joint model's three node tangents would be the
+    largest part of its Jacobian.
     """
     return _log_g_parts(alpha, depth, a)[0]
 
