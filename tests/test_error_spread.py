@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tactile_jax.inference import core
-from tactile_jax.inference.residuals import row_bins
+from tactile_jax.inference.residuals import row_bins, row_series
 
 jax.config.update("jax_enable_x64", True)
 
@@ -69,3 +69,35 @@ def test_spread_is_the_cluster_jackknife_and_flags_only_shared_misfit():
             assert np.isclose(float(got_pooled), ref[:3].mean(), rtol=1e-8)
         assert np.all(np.asarray(ratios)[:3] > np.asarray(plain)[:3])          # the leverage correction widens
         assert bool(np.any(np.asarray(plain)[:3] > core.SPREAD_GATE * np.mean(r ** 2))) is flagged
+
+
+def test_series_cover_every_row_once_each_along_the_bins():
+    data = _data()
+    idx = row_series(data)
+    assert idx.shape == (18, L)
+    assert np.array_equal(np.sort(idx.ravel()), np.arange(18 * L))
+    assert np.all(row_bins(data)[idx] == np.arange(L))
+
+
+def test_roughness_tells_a_trend_from_scatter():
+    """Scatter from bin to bin, however large, leaves the F ratio of a smooth part near 1; a trend across the
+    band raises it far above ``core.LUMPY_F``, in the median of the series or, where one block alone has the
+    trend, in their largest; rows out of use (zeros) are left out, and series too short for the test too."""
+    rng = np.random.default_rng(3)
+    data = _data()
+    roughness = jax.jit(lambda r: core._roughness(r, data))
+    bins = row_bins(data)
+    scatter = 4.0 * rng.standard_normal(18 * L)
+    median, largest, n = (float(x) for x in roughness(jnp.asarray(scatter)))
+    assert 0.5 < median < 1.6 and largest < core.LUMPY_F_MAX and n == 18
+    trend = scatter + 8.0 * np.sin(2.0 * np.linspace(-1, 1, L)[bins])
+    assert float(roughness(jnp.asarray(trend))[0]) > 3 * core.LUMPY_F
+    masked = np.where(bins % 3 == 0, 0.0, trend)
+    assert float(roughness(jnp.asarray(masked))[0]) > 3 * core.LUMPY_F
+    one_block = scatter.copy()
+    one_block[L:2 * L] += 8.0 * np.sin(2.0 * np.linspace(-1, 1, L))      # the x pair's ratio alone
+    median, largest, _ = (float(x) for x in roughness(jnp.asarray(one_block)))
+    assert median < core.LUMPY_F and largest > 3 * core.LUMPY_F_MAX
+    few = np.where(bins < core.ROUGHNESS_MIN_ROWS - 1, scatter, 0.0)
+    median, largest, n = (float(x) for x in roughness(jnp.asarray(few)))
+    assert np.isnan(median) and np.isnan(largest) and n == 0

@@ -141,16 +141,28 @@ def test_a_grating_gives_its_normal_speed_and_leaves_the_ridge_component_undeter
 
 
 @pytest.mark.slow
-def test_a_lumpy_spectrum_of_few_modes_is_a_poor_fit_whose_errors_hold_the_lumps():
-    """300 plane waves: the same lumps in every segment, which the segment jackknife cannot see. The fit says
-    poor_fit, and the spread of its misfit across frequency sets the speeds' errors, so they hold the truth."""
+def test_a_lumpy_spectrum_of_few_modes_is_named_and_its_errors_hold_the_lumps():
+    """300 plane waves: the same lumps in every segment, which the segment jackknife cannot see. The misfit is
+    far above the noise but has no trend across frequency: the fit says poor_fit with texture "lumpy", and the
+    spread of its misfit across frequency sets the speeds' errors, so they hold the truth."""
     scene = Scene(texture=ModeTexture(n_modes=300, seed=4), velocity=(0.03, 0.02), contact_radius=1.5e-3,
                   duration=16.0, snr_db=45.0, seed=4)
     res = fit_recording(simulate(scene), FitOptions(**GAUSS))
-    assert res.status == "poor_fit"
-    assert "spread across frequency" in res.error_method and "lumpy texture spectrum" in res.message
+    assert res.status == "poor_fit" and res.texture.endswith("lumpy") and "lumpy texture" in res.message
+    assert "spread across frequency" in res.error_method
     for name, truth in (("vx", 0.03), ("vy", 0.02)):
         assert abs(res[name].value - truth) < 3 * res[name].err
+
+
+@pytest.mark.slow
+def test_a_wrong_window_leaves_a_trend_and_stays_a_poor_fit():
+    """The control of the lumpy rule: a smooth texture under a Hertz disk fitted with the Gaussian window misfits
+    with a trend across frequency, so it stays poor_fit, not lumpy."""
+    scene = Scene(texture=RandomTexture(), velocity=(0.0367, 0.0058), contact_radius=2.5e-3, window="hertz",
+                  duration=16.0, snr_db=42.0, seed=11)
+    res = fit_recording(simulate(scene), FitOptions(**GAUSS))
+    assert res.status == "poor_fit" and not bool(res.summary.lumpy)
+    assert res.summary.roughness > 3.0 and "trend ratio" in res.message and res.texture == "isotropic"
 
 
 def test_bad_input_raises_one_line_naming_the_source():

@@ -118,7 +118,7 @@ def result_from_analysis(a: Analysis, *, velocity=None, curvature_radius=None, m
                               window_weak=not bool(a.window_needed), segments=segments, file=file, index=index)
     notes, warnings = notes_of(a)
     res.window, res.window_margin = window, _window_margin(a)
-    res.texture = texture_name(s.free)
+    res.texture = texture_name(s.free) + (", lumpy" if bool(s.lumpy) else "")
     res.texture_margin = None if not np.isfinite(float(a.texture_margin)) else float(a.texture_margin)
     res.direction = DIRECTIONS[int(a.direction)]
     res.direction_margin = None if not np.isfinite(float(a.direction_margin)) else float(a.direction_margin)

@@ -13,7 +13,7 @@ import numpy as np
 from .data import JointData, Measured
 from .forward import N_PHYS, ModelSpectra, spectra_at_bins
 
-__all__ = ["blocks", "row_bins", "residuals", "residuals_and_model", "n_prior"]
+__all__ = ["blocks", "row_bins", "row_series", "residuals", "residuals_and_model", "n_prior"]
 
 
 def _masked(mask, meas, model, weight):
@@ -41,6 +41,21 @@ def row_bins(data: JointData) -> np.ndarray:
     b = np.arange(data.omega.shape[-1])
     n1, n2 = data.meas.beta1.shape[-1], data.meas.beta2.shape[-1]
     return np.concatenate([np.tile(b, 6), np.repeat(b, 2 * n1), np.repeat(b, 2 * n2), np.tile(b, 2)])
+
+
+def row_series(data: JointData) -> np.ndarray:
+    """(S, L) the row of ``blocks`` of each series across the window's bins (static: from the shapes alone). A
+    series is one pair's block (shallow PSD, ratio, conditioned deep PSD, chain residual PSD) or one column
+    of a chain's whitened coefficients."""
+    n_bins = data.omega.shape[-1]
+    b = np.arange(n_bins)
+    rows = [k * n_bins + b for k in range(6)]
+    base = 6 * n_bins
+    for n in (2 * data.meas.beta1.shape[-1], 2 * data.meas.beta2.shape[-1]):
+        rows += [base + b * n + j for j in range(n)]
+        base += n_bins * n
+    rows += [base + k * n_bins + b for k in range(2)]
+    return np.stack(rows)
 
 
 def n_prior(n_params: int) -> int:

@@ -326,14 +326,20 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     set_contact_depth(res, curvature_radius)
     if spread:
         notes.append(f"the errors of {', '.join(spread)} come from the misfit's spread across frequency, "
-                     + ("above the segments' scatter (a lumpy texture spectrum?)" if status == Status.POOR_FIT
+                     + ("above the segments' scatter" if status == Status.POOR_FIT
                         else "2x or more the segments' scatter"))
     if res.cond > 1e10:
         notes.append(f"near-degenerate parameters (condition number {res.cond:.2g}): see the correlations")
-    if status == Status.POOR_FIT:
-        notes.insert(0, f"poor fit: reduced chi-square {res.redchi:.1f}; the joint model does not describe these "
-                        "spectra (a line texture, another window, or a wrong basin): check the plot before trusting "
-                        "the numbers")
+    if status == Status.POOR_FIT and bool(s.lumpy):
+        notes.insert(0, f"poor fit, lumpy texture: the spectra scatter {res.redchi:.1f}x their noise from bin to bin "
+                        f"with no trend across frequency (trend ratio {float(s.roughness):.1f}), as a texture of a few "
+                        "hundred persistent modes makes them; the values are the smooth texture model's, with errors "
+                        "from that scatter, which hold for slips near an axis under small contacts and run small "
+                        "on oblique slips and contacts above 5 mm")
+    elif status == Status.POOR_FIT:
+        notes.insert(0, f"poor fit: reduced chi-square {res.redchi:.1f}, trend ratio {float(s.roughness):.1f} across "
+                        "frequency; the joint model does not describe these spectra (a line texture, another window, "
+                        "or a wrong basin): check the plot before trusting the numbers")
     n_leak = int(loc.n_leak)
     if n_leak:
         res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")

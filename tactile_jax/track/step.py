@@ -147,7 +147,7 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
     settled = moved <= SETTLED
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(e.chi2)
     limit = poor_fit_limit(e.n_data, record.seg.bin_factor)
-    e = e._replace(converged=finite & settled, settled=jnp.asarray(False),
+    e = e._replace(converged=finite & settled, settled=jnp.asarray(False), lumpy=e.lumpy & (e.redchi > limit),
                    status=fit_status(e.n_bins, finite, finite & settled, e.redchi, limit))
     new = TrackState(theta, free, state.log_knots, state.prior_center, jac, b.i0, data.mask_xy,
                      jnp.where(stale, 0, state.age + 1).astype(jnp.int32), moved)

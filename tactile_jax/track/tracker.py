@@ -357,7 +357,7 @@ class Tracker:
                     *(np.asarray(x) for x in (e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
                                               e.step_sigma, e.converged, e.settled)),
                     np.asarray(e.status), np.asarray(e.n_bins), loc, np.asarray(e.jackknife), None, None, None,
-                    _Mask(mask), np.asarray(e.spread))
+                    _Mask(mask), np.asarray(e.spread), np.asarray(e.roughness), np.asarray(e.lumpy))
         moved = float(u.moved)
         res = result_from_summary(s, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
                                   model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
