@@ -515,11 +515,11 @@ def _roughness(r, data: JointData):
     series' rows in use) per degree of freedom over what is left per degree of freedom. Returns the median and
     the largest over the series with at least ``ROUGHNESS_MIN_ROWS`` rows (nan where none has), and their number.
     A model that describes the spectra leaves residuals whose smooth part is their share, scaled by the bins'
-    correlation: about the bin factor. A wrong
-    model (another window, a wrong basin) leaves a trend across frequency: medians of 6-64 on
-    ``benchmarks/lumpy.py``'s scenes fitted with the wrong window. A lumpy texture (persistent modes every segment
-    hears) scatters the spectra from bin to bin, far above the segments' noise, and leaves no trend (medians of
-    0.4-2.9), except where a solve ended in a wrong basin: there one block keeps a trend (its largest ratio 9-30)."""
+    correlation: about the bin factor. A wrong model (another window, a wrong basin) leaves a trend across
+    frequency: medians of 3.05-64 on ``benchmarks/lumpy.py``'s scenes fitted with the wrong window. A lumpy
+    texture (persistent modes every segment hears) scatters the spectra from bin to bin, far above the segments'
+    noise, and leaves no trend (medians of 0.29-2.93), except where a solve ended in a wrong basin: there one
+    block keeps a trend (its largest ratio 9-30)."""
     idx = row_series(data)
     y = r[jnp.asarray(idx)]                                                         # (S, L)
     use = y != 0

@@ -36,17 +36,10 @@ def blocks(model: ModelSpectra, meas: Measured, data: JointData):
     return jnp.concatenate(out)
 
 
-def row_bins(data: JointData) -> np.ndarray:
-    """The window bin (0 .. L-1) of each row of ``blocks`` (static: from the shapes alone)."""
-    b = np.arange(data.omega.shape[-1])
-    n1, n2 = data.meas.beta1.shape[-1], data.meas.beta2.shape[-1]
-    return np.concatenate([np.tile(b, 6), np.repeat(b, 2 * n1), np.repeat(b, 2 * n2), np.tile(b, 2)])
-
-
 def row_series(data: JointData) -> np.ndarray:
     """(S, L) the row of ``blocks`` of each series across the window's bins (static: from the shapes alone). A
     series is one pair's block (shallow PSD, ratio, conditioned deep PSD, chain residual PSD) or one column
-    of a chain's whitened coefficients."""
+    of a chain's whitened coefficients: every row of ``blocks`` is in exactly one."""
     n_bins = data.omega.shape[-1]
     b = np.arange(n_bins)
     rows = [k * n_bins + b for k in range(6)]
@@ -56,6 +49,14 @@ def row_series(data: JointData) -> np.ndarray:
         base += n_bins * n
     rows += [base + k * n_bins + b for k in range(2)]
     return np.stack(rows)
+
+
+def row_bins(data: JointData) -> np.ndarray:
+    """The window bin (0 .. L-1) of each row of ``blocks`` (static: from the shapes alone)."""
+    idx = row_series(data)
+    bins = np.empty(idx.size, dtype=int)
+    bins[idx] = np.arange(idx.shape[1])
+    return bins
 
 
 def n_prior(n_params: int) -> int:
