@@ -7,7 +7,8 @@ scatters from bin to bin far above the segments' noise, with no trend across
 frequency. The fit names such a poor fit's texture "..., lumpy" where its
 misfit has no trend in any block (``core._roughness``: the median trend ratio at
 most ``core.LUMPY_F`` bin factors, the largest at most ``core.LUMPY_F_MAX``), and
-its errors come from the misfit's spread across frequency. Scene sets (16 s at
+refits it with the texture's power and angular spread at each bin as random
+effects (stage TL of ``inference.analysis``). Scene sets (16 s at
 1 kHz, 40-50 dB, |v| log-uniform 1-8 cm/s, the contact window drawn per scene,
 Gaussian or Hertz):
 

@@ -77,3 +77,27 @@ def test_a_vmapped_chunk_on_the_cpu_equals_the_single_record_program():
     many = run.analyse_many(recs, settings, choices, size=4, vmapped=True)
     for rec, a in zip(recs, many):
         _same(a, run.analyse_one(rec, settings, choices))
+
+
+def test_a_lumpy_textures_random_effects_are_directions_of_the_jacobian():
+    """The texture's random effects at each bin (each pair's log power, the angular factor) are directions in the
+    parameters (``forward.lump_basis``): the refit of a lumpy texture takes the rows' derivatives by them from the
+    Jacobian where its start ended, and they are the model's own derivatives (``forward.texture_tangents``)."""
+    import jax
+    import jax.numpy as jnp
+
+    from tactile_jax.inference import forward, residuals
+    from tactile_jax.inference.data import N_DATA_ROWS
+
+    options = FitOptions(**GAUSS)
+    rec = _records(options, 1)[0]
+    a = run.analyse_one(rec, analysis_settings(options), choices_of(options))
+    data = jax.tree.map(jnp.asarray, a.summary.data)
+    theta = jnp.asarray(a.stages.theta[an.G0])
+    from_jac = -a.stages.jac[an.G0][:N_DATA_ROWS] @ forward.lump_basis(theta.shape[0])
+    own = jax.jit(lambda t, d: residuals.lump_rows(forward.texture_tangents(t, d), d))(theta, data)
+    scale = np.abs(np.asarray(own)).max(0)
+    assert np.all(scale > 0)
+    np.testing.assert_allclose(from_jac, np.asarray(own), rtol=0, atol=1e-9 * scale.max())
+    # a smooth texture's fit has none
+    assert not np.asarray(a.lumps).any() and not a.stages.active[an.TL]

@@ -6,12 +6,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tactile_jax.inference import core
-from tactile_jax.inference.residuals import row_bins, row_series
+from tactile_jax.inference import core, residuals
+from tactile_jax.inference.residuals import N_LUMP_SERIES, row_bins, row_series
 
 jax.config.update("jax_enable_x64", True)
 
 L = 48
+#: the data rows' series and all series (the texture random effects' rows last)
+S_DATA = 18
+S_ALL = S_DATA + N_LUMP_SERIES
 
 
 def _data():
@@ -45,17 +48,19 @@ def _design(rng, rows):
 
 def test_rows_follow_the_blocks_layout():
     bins = row_bins(_data())
-    assert bins.shape == (18 * L,)                       # 3 x 2 L level blocks, 4 L + 6 L chain rows, 2 L residual PSDs
-    assert np.bincount(bins).tolist() == [18] * L
+    # 3 x 2 L level blocks, 4 L + 6 L chain rows, 2 L residual PSDs, then the random effects' rows
+    assert bins.shape == (S_ALL * L,)
+    assert np.bincount(bins).tolist() == [S_ALL] * L
 
 
 def test_spread_is_the_cluster_jackknife_and_flags_only_shared_misfit():
     rng = np.random.default_rng(5)
     bins = row_bins(_data())
-    x = _design(rng, bins.size)
+    data_rows = np.arange(bins.size) < S_DATA * L           # the random effects' rows: zero in a smooth model
+    x = _design(rng, bins.size) * data_rows[:, None]
     free = np.ones(5, bool)
     cluster = bins // core.SPREAD_BINS
-    noise = rng.standard_normal(bins.size)
+    noise = rng.standard_normal(bins.size) * data_rows
     # a misfit shared by every row of a bin (a lump of the texture spectrum), along the first columns
     lump = (3.0 * rng.standard_normal(L))[bins] * (1.0 + x[:, 1] + x[:, 2])
     spread = jax.jit(lambda r, x, free: core._spread(r, x, free, core._unit_inverse(x, free), _data()))
@@ -74,8 +79,8 @@ def test_spread_is_the_cluster_jackknife_and_flags_only_shared_misfit():
 def test_series_cover_every_row_once_each_along_the_bins():
     data = _data()
     idx = row_series(data)
-    assert idx.shape == (18, L)
-    assert np.array_equal(np.sort(idx.ravel()), np.arange(18 * L))
+    assert idx.shape == (S_ALL, L)
+    assert np.array_equal(np.sort(idx.ravel()), np.arange(S_ALL * L))
     assert np.all(row_bins(data)[idx] == np.arange(L))
 
 
@@ -87,9 +92,9 @@ def test_roughness_tells_a_trend_from_scatter():
     data = _data()
     roughness = jax.jit(lambda r: core._roughness(r, data))
     bins = row_bins(data)
-    scatter = 4.0 * rng.standard_normal(18 * L)
+    scatter = 4.0 * rng.standard_normal(S_ALL * L)
     median, largest, n = (float(x) for x in roughness(jnp.asarray(scatter)))
-    assert 0.5 < median < 1.6 and largest < core.LUMPY_F_MAX and n == 18
+    assert 0.5 < median < 1.6 and largest < core.LUMPY_F_MAX and n == S_DATA     # the data's series alone
     trend = scatter + 8.0 * np.sin(2.0 * np.linspace(-1, 1, L)[bins])
     assert float(roughness(jnp.asarray(trend))[0]) > 3 * core.LUMPY_F
     masked = np.where(bins % 3 == 0, 0.0, trend)
@@ -101,3 +106,60 @@ def test_roughness_tells_a_trend_from_scatter():
     few = np.where(bins < core.ROUGHNESS_MIN_ROWS - 1, scatter, 0.0)
     median, largest, n = (float(x) for x in roughness(jnp.asarray(few)))
     assert np.isnan(median) and np.isnan(largest) and n == 0
+
+
+def _lumpy_data(rng, sd):
+    """Data rows whose every bin carries random effects along random directions, the rows' derivatives by them,
+    and the data of those shapes (``residuals._profiled``'s inputs)."""
+    n_rows = S_DATA * L
+    bins = row_bins(_data())[:n_rows]
+    jl = rng.standard_normal((n_rows, residuals.N_LUMP)) * rng.uniform(0.5, 3.0, residuals.N_LUMP)
+    jl[rng.random(n_rows) < 0.3] = 0.0                                             # rows out of use
+    data = types.SimpleNamespace(omega=np.zeros(L), meas=_data().meas, lump_sd=jnp.asarray(sd),
+                                 lump_rows=jnp.asarray(jl))
+    return data, jl, bins
+
+
+def test_random_effects_give_the_marginal_quadratic_form_and_their_degrees_of_freedom():
+    """Per bin, |r - J delta|^2 + |prior rows|^2 is r^T (I + J C J^T)^-1 r, the marginal likelihood's quadratic form,
+    and the degrees of freedom are tr(J (J^T J + C^-1)^-1 J^T); with the sds at 0 the rows are unchanged."""
+    rng = np.random.default_rng(11)
+    sd = np.array([0.4, 0.3, 0.6])
+    data, jl, bins = _lumpy_data(rng, sd)
+    r = rng.standard_normal(jl.shape[0]) * 2.0
+    r[~jl.any(1)] = 0.0
+    rows, extra, edf = jax.jit(lambda r: residuals._profiled(r, data))(jnp.asarray(r))
+    c = np.asarray(residuals._prior_factor(jnp.asarray(sd)))
+    c = c @ c.T
+    assert np.isclose(c[0, 1], sd[0] ** 2) and np.isclose(c[0, 0], sd[0] ** 2 + sd[1] ** 2)
+    assert np.allclose(c[2:, 2:], sd[2] ** 2 * np.eye(4))
+    q_ref, edf_ref = 0.0, 0.0
+    for b in range(L):
+        m = bins == b
+        j, rb = jl[m], r[m]
+        q_ref += rb @ np.linalg.solve(np.eye(m.sum()) + j @ c @ j.T, rb)
+        edf_ref += np.trace(j @ np.linalg.solve(j.T @ j + np.linalg.inv(c), j.T))
+    np.testing.assert_allclose(float(np.sum(np.asarray(rows) ** 2) + np.sum(np.asarray(extra) ** 2)), q_ref,
+                               rtol=1e-9)
+    np.testing.assert_allclose(float(edf), edf_ref, rtol=1e-9)
+    data.lump_sd = jnp.zeros(3)
+    rows0, extra0, edf0 = jax.jit(lambda r: residuals._profiled(r, data))(jnp.asarray(r))
+    assert np.array_equal(np.asarray(rows0), r) and not np.asarray(extra0).any() and float(edf0) == 0.0
+
+
+def test_lump_scale_measures_the_pairs_powers_spread():
+    """Rows made of each bin's pair powers (common sd 0.5, each pair's own 0.3) plus unit noise: the moments give
+    the two sds back."""
+    rng = np.random.default_rng(2)
+    sd = np.array([0.5, 0.3])
+    est = []
+    for _ in range(20):
+        data, jl, bins = _lumpy_data(rng, np.zeros(3))
+        jl[:, :2] *= 4.0
+        delta = sd[0] * rng.standard_normal(L)[:, None] + sd[1] * rng.standard_normal((L, 2))
+        r = np.sum(jl[:, :2] * delta[bins], 1) + rng.standard_normal(jl.shape[0])
+        r[~jl.any(1)] = 0.0
+        est.append(np.asarray(jax.jit(lambda r, j: residuals.lump_scale(r, j, data))(jnp.asarray(r), jnp.asarray(jl))))
+    est = np.asarray(est)
+    np.testing.assert_allclose(np.median(est[:, :2], 0), sd, rtol=0.15)
+    np.testing.assert_allclose(est[:, 2], np.hypot(est[:, 0], est[:, 1]))

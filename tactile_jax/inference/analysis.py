@@ -27,6 +27,10 @@ T2    the texture's lobe freed to its second harmonic (detection)
 T4    all four harmonics, where the lobe is decisive (its shape)
 DA    the minor speed held at 0 (slip along an axis)
 WN    the contact radius held negligible (is the window needed?)
+TL    the kept fit refitted with the texture's power at each bin a random effect
+      (``residuals``), where that fit is poor and its misfit has no trend
+      across frequency (``core``'s lumpy texture): a texture of few persistent
+      modes
 ====  ==========================================================================
 
 The windows, texture models and slip directions are chosen, or averaged
@@ -56,17 +60,17 @@ from .._numerics import any_in_batch
 from .core import (HERTZ_PER_GAUSS, ITERATIONS, N_STARTS, OWN_STARTS, STOP_TOL, DECREMENT_TOL, Errors, Located,
                    Record, Settings, Start, Summary, errors, fit_status, no_start, prepare, settled_physics,
                    statistics, summary_at)
-from .data import JointData
-from .forward import ANISO, INDEX, ModelSpectra
-from .residuals import residuals_and_model
+from .data import N_DATA_ROWS, N_LUMP, N_LUMP_SD, JointData
+from .forward import ANISO, INDEX, ModelSpectra, lump_basis
+from .residuals import lump_scale, residuals_and_model
 from .solve import levenberg_marquardt
 
 __all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
            "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
            "AXIS_FLOOR", "A_NEGLIGIBLE", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
 
-STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN")
-G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN = range(len(STAGES))
+STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN", "TL")
+G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN, TL = range(len(STAGES))
 #: the windows, texture models and slip directions, in the order of their codes in ``Analysis``
 WINDOWS = ("gaussian", "hertz")
 TEXTURES = ("isotropic", "directional")
@@ -134,7 +138,8 @@ class Stages(NamedTuple):
     the solution (``core.STATUS``); active (K,): whether the stage ran; hertz (K,): its window; errors:
     its ``core.Errors`` (zeros where not computed: a stage off, or G0's scouting); r, jac, model: the
     residuals (K, R), their Jacobian (K, R, P) and the model's spectra at its solution; iterations (K,):
-    the evaluations of the residuals and their Jacobian it took."""
+    the evaluations of the residuals and their Jacobian it took; lumps (K, ``N_LUMP_SD``), lump_rows (K, R_d,
+    ``N_LUMP``): the texture random effects it fitted with (``JointData.lump_sd``, ``JointData.lump_rows``)."""
 
     theta: jax.Array
     free: jax.Array
@@ -149,6 +154,8 @@ class Stages(NamedTuple):
     jac: jax.Array
     model: ModelSpectra
     iterations: jax.Array
+    lumps: jax.Array
+    lump_rows: jax.Array
 
 
 class Analysis(NamedTuple):
@@ -169,7 +176,8 @@ class Analysis(NamedTuple):
     ``DIRECTIONS``; direction_margin (AIC in the minor speed's error scale; nan where not tested);
     direction_forced; oblique: the fit with both speeds free where one is held (theta, free, scales
     (P,) each, chi2; else the kept fit's). window_needed; window_rise: chi2's rise with a held negligible;
-    window_threshold. stages: ``Stages``.
+    window_threshold. lumps: (``N_LUMP_SD``,) the sds of the texture's random effects at each bin
+    (``JointData.lump_sd``) where the kept fit models them (TL), else zeros. stages: ``Stages``.
     """
 
     summary: Summary
@@ -200,6 +208,7 @@ class Analysis(NamedTuple):
     window_needed: jax.Array
     window_rise: jax.Array
     window_threshold: jax.Array
+    lumps: jax.Array
     stages: Stages
 
 
@@ -213,14 +222,17 @@ class _Plan(NamedTuple):
     hertz: jax.Array
     active: jax.Array
     give_up: jax.Array = np.inf         # |r|^2 above which the solve ends early (``levenberg_marquardt``)
+    lumps: jax.Array = np.zeros(N_LUMP_SD)      # the texture random effects (``JointData.lump_sd``, ``lump_rows``)
+    lump_rows: jax.Array = np.zeros((N_DATA_ROWS, N_LUMP))
 
 
 def _either(theta, args):
     """The joint residuals and model under the window ``args[3]`` says (traced; ``args[2]`` None: the Gaussian
-    window's alone). Each window is computed only where some record wants it: on one record, one window;
+    window's alone), with the texture random effects' sds and rows ``args[4:]``. Each window is computed only where some record wants it: on one record, one window;
     under ``vmap``, a chunk whose records all want one window (every stage but the texture and direction
     refits) computes that one alone, instead of both for every record."""
-    data_g, data_h, coef, use_hertz = args
+    data_g, data_h, coef, use_hertz, lumps, rows = args
+    data_g, data_h = (d._replace(lump_sd=lumps, lump_rows=rows) for d in (data_g, data_h))
     if coef is None:
         return residuals_and_model(theta, (data_g, None))
     shape = jax.eval_shape(lambda t: residuals_and_model(t, (data_g, None)), theta)
@@ -427,11 +439,12 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         return _Plan(prep_g.starts, prep_g.free, jnp.asarray(1), jnp.asarray(1), jnp.asarray(-1), jnp.asarray(True),
                      jnp.asarray(hertz), jnp.asarray(False))
 
-    def from_point(theta, free, hertz, active, give_up=np.inf):
+    def from_point(theta, free, hertz, active, give_up=np.inf, lumps=np.zeros(N_LUMP_SD),
+                   lump_rows=np.zeros((N_DATA_ROWS, N_LUMP))):
         """A solve from one point, or a stage switched off."""
         plan = _Plan(jnp.broadcast_to(theta, prep_g.starts.shape), free, jnp.asarray(1), jnp.asarray(1),
                      jnp.asarray(N_FINAL), jnp.asarray(True), jnp.asarray(hertz), jnp.asarray(active),
-                     jnp.asarray(give_up))
+                     jnp.asarray(give_up), jnp.asarray(lumps), jnp.asarray(lump_rows))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
     def own_starts(prep, n_explore, hertz, active, n_final=N_FINAL):
@@ -442,7 +455,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     def plan_g0(st, ends):
         # a refit (a profile point, a model of ``fit``'s extras) goes on for ``core``'s final iterations, no more
         given = _Plan(start.theta.astype(dtype), start.free, jnp.asarray(1), jnp.asarray(1),
-                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True))
+                      jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True), jnp.asarray(np.inf),
+                      jnp.asarray(start.lumps), jnp.asarray(start.lump_rows))
         gauss = own_starts(prep_g, OWN_STARTS["gaussian"], False, True)
         scout = own_starts(prep_g, N_STARTS, False, True, n_final=0)
         plan = jax.tree.map(lambda a, b: jnp.where(window == 1, a, b), gauss, scout)
@@ -510,14 +524,27 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         i, major = _I_V[0] + minor, _I_V[0] + 1 - minor      # vx, vy are adjacent in the parameter vector
         return from_point(theta.at[i].set(theta[major] + np.log(AXIS_FLOOR)), free.at[i].set(False), hertz, wanted)
 
-    def plan_wn(st, ends):
+    def direction_index(st):
         t, hertz = texture_index(st)
-        d, _, _ = _direction_fit(st, t, choices, errors_at(st, t).scales)
+        return _direction_fit(st, t, choices, errors_at(st, t).scales)[0], hertz
+
+    def plan_wn(st, ends):
+        d, hertz = direction_index(st)
         sd_a = errors_at(st, d).sd[_I_A]
         wanted = (jnp.asarray(choices.test_window) & _compared(st, d) & st.free[d][_I_A]
                   & (sd_a >= WINDOW_TEST_REL_ERR) & ~refit)
         return from_point(st.theta[d].at[_I_A].set(np.log(A_NEGLIGIBLE)), st.free[d].at[_I_A].set(False), hertz,
                           wanted)
+
+    basis = jnp.asarray(lump_basis(p), dtype)
+
+    def plan_tl(st, ends):
+        d, hertz = direction_index(st)
+        wanted = errors_at(st, d).lumpy & _compared(st, d) & ~refit
+        # the data rows' derivatives by the random effects, from the Jacobian at d (``forward.lump_basis``)
+        rows = -st.jac[d][:N_DATA_ROWS] @ basis
+        sd = lump_scale(st.r[d][:N_DATA_ROWS], rows, data_g)
+        return from_point(st.theta[d], st.free[d], hertz, wanted & jnp.any(sd > 0), lumps=sd, lump_rows=rows)
 
     def typed(planner):         # every branch of the switch returns the same types
         def run(st, ends):
@@ -525,22 +552,25 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
             return _Plan(plan.starts.astype(dtype), plan.free.astype(bool), *(jnp.asarray(x, jnp.int32) for x in
                          (plan.n_start, plan.n_explore, plan.n_final)),
                          *(jnp.asarray(x, bool) for x in (plan.skip, plan.hertz, plan.active)),
-                         jnp.asarray(plan.give_up, dtype))
+                         jnp.asarray(plan.give_up, dtype), jnp.broadcast_to(jnp.asarray(plan.lumps, dtype), (N_LUMP_SD,)),
+                         jnp.broadcast_to(jnp.asarray(plan.lump_rows, dtype), (N_DATA_ROWS, N_LUMP)))
         return run
 
     planners = [typed(f) for f in (plan_g0, plan_h1, plan_gw1, plan_hx, plan_gw2, plan_gf, plan_t2, plan_t4, plan_da,
-                                   plan_wn)]
+                                   plan_wn, plan_tl)]
     assert len(planners) == len(STAGES)
 
     def stage(carry, k):
         st, ends = carry
         plan = jax.lax.switch(k, planners, st, ends)
         theta, r, jac, model, last, n_iter = levenberg_marquardt(
-            _either, plan.starts, (data_g, data_h, coef, plan.hertz), plan.free, prep_g.first, n_start=plan.n_start,
+            _either, plan.starts, (data_g, data_h, coef, plan.hertz, plan.lumps, plan.lump_rows), plan.free, prep_g.first, n_start=plan.n_start,
             n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
             stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL, give_up_chi2=plan.give_up,
             give_up_after=GIVE_UP_AFTER)
-        _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(theta, r, jac, plan.free)
+        lumped_data = data_g._replace(lump_sd=plan.lumps, lump_rows=plan.lump_rows)
+        _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(
+            theta, r, jac, plan.free, lumped_data)
         finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
         converged = finite & ((decrement < DECREMENT_TOL) | settled_physics(step_sigma, plan.free))
         status = jnp.where(plan.active, fit_status(n_bins, finite, converged, redchi), 4)
@@ -548,15 +578,16 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         # the errors where the stage ended a solve (not G0's scouting), computed once for every later choice
         solved = plan.active & (plan.n_final > 0)
         e = jax.lax.cond(any_in_batch(solved), lambda: jax.tree.map(
-            lambda x, o: jnp.where(solved, x, o), errors(record, data_g, plan.free, i0, theta, r, jac), blank),
+            lambda x, o: jnp.where(solved, x, o), errors(record, lumped_data, plan.free, i0, theta, r, jac),
+            blank),
             lambda: blank)
         new = (theta, plan.free, chi2, redchi, n_data.astype(dtype), status, plan.active, plan.hertz, e, r, jac, model,
-               n_iter)
+               n_iter, plan.lumps, plan.lump_rows)
         st = jax.tree.map(lambda whole, x: whole.at[k].set(x), st, Stages(*new))
         return (st, jnp.where(k == G0, last, ends)), None
 
     n = len(STAGES)
-    args0 = (data_g, data_h, coef, jnp.asarray(False))
+    args0 = (data_g, data_h, coef, jnp.asarray(False), jnp.zeros(N_LUMP_SD, dtype), jnp.zeros((N_DATA_ROWS, N_LUMP), dtype))
     r_shape, model_shape = jax.eval_shape(_either, prep_g.starts[0], args0)
     zeros = lambda x: jnp.zeros(x.shape, x.dtype)           # noqa: E731
     blank = jax.tree.map(zeros, jax.eval_shape(lambda: errors(record, data_g, prep_g.free, i0, prep_g.starts[0],
@@ -566,7 +597,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     init = Stages(jnp.zeros((n, p), dtype), jnp.zeros((n, p), bool), jnp.full(n, jnp.inf, dtype),
                   jnp.full(n, jnp.inf, dtype), jnp.zeros(n, dtype), jnp.full(n, 4, jnp.int32), jnp.zeros(n, bool),
                   jnp.zeros(n, bool), stacked(blank), jnp.zeros((n,) + r_shape.shape, dtype),
-                  jnp.zeros((n,) + r_shape.shape + (p,), dtype), stacked(model_shape), jnp.zeros(n, jnp.int32))
+                  jnp.zeros((n,) + r_shape.shape + (p,), dtype), stacked(model_shape), jnp.zeros(n, jnp.int32),
+                  jnp.zeros((n, N_LUMP_SD), dtype), jnp.zeros((n, N_DATA_ROWS, N_LUMP), dtype))
     (st, _), _ = jax.lax.scan(stage, (init, prep_g.starts), jnp.arange(n))
 
     # the choices, from where the stages ended
@@ -576,10 +608,18 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     others = jnp.stack([w.choice.other, jnp.where(texture == 0, t.other, -1)])
     e_t = errors_at(st, t_index)
     d, d_margin, d_forced = _direction_fit(st, t_index, choices, e_t.scales)
-    theta, free, e = st.theta[d], st.free[d], errors_at(st, d)          # the kept fit
-    jac, model = st.jac[d], jax.tree.map(lambda x: x[d], st.model)
+    # a lumpy texture's refit (TL) replaces the fit it started from where it ran to a solution
+    lumped = st.active[TL] & ((st.status[TL] == 0) | (st.status[TL] == 3))
+    kept = jnp.where(lumped, TL, d)
+    theta, free, e = st.theta[kept], st.free[kept], errors_at(st, kept)          # the kept fit
+    e = e._replace(lumpy=e.lumpy | lumped)
+    jac, model = st.jac[kept], jax.tree.map(lambda x: x[kept], st.model)
+    lumps = jnp.where(lumped, st.lumps[TL], 0.0)
+    rows = jnp.where(lumped, st.lump_rows[TL], 0.0)
+    data_g, data_h = (x._replace(lump_sd=lumps, lump_rows=rows) for x in (data_g, data_h))
     summary = summary_at(theta, free, e, Located(i0, b.n_leak, b.k0, b.speed0), model, jac, data_g)
-    needed, rise, threshold = _window_needed(st.active[WN], st.chi2[WN], e.chi2, e.scales[_I_A])
+    e_d = errors_at(st, d)
+    needed, rise, threshold = _window_needed(st.active[WN], st.chi2[WN], e_d.chi2, e_d.scales[_I_A])
     other_sd = st.errors.sd[jnp.maximum(others, 0)][:, _I_VVA]
     nan3 = jnp.full(3, jnp.nan, dtype)
     return Analysis(
@@ -597,7 +637,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         direction=jnp.where(~free[_I_V[0]] & free[_I_V[1]], 2, jnp.where(free[_I_V[0]] & ~free[_I_V[1]], 1, 0)),
         direction_margin=d_margin, direction_forced=d_forced,
         oblique_theta=st.theta[t_index], oblique_free=st.free[t_index], oblique_scales=e_t.scales, oblique_chi2=st.chi2[t_index],
-        window_needed=needed, window_rise=rise, window_threshold=threshold, stages=st)
+        window_needed=needed, window_rise=rise, window_threshold=threshold, lumps=lumps, stages=st)
 
 
 def summary_of(a: Analysis) -> Summary:

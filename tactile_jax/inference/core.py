@@ -43,9 +43,9 @@ from ..spectral.prewhiten import filter_response
 from ..model.r_curve import log_g
 from ..spectral import band as band_mod
 from ..spectral.band import MIN_BINS as MIN_BINS
-from .data import N_FIT, JointData, grid_offsets, half_offsets, measure
+from .data import N_DATA_ROWS, N_FIT, N_LUMP, N_LUMP_SD, JointData, grid_offsets, half_offsets, measure
 from .forward import ANISO, INDEX, N_PHYS, ModelSpectra, spectra_at_bins
-from .residuals import blocks, n_prior, residuals_and_model, row_bins, row_series
+from .residuals import N_LUMP_SERIES, blocks, lump_dof, n_lump_rows, n_prior, residuals_and_model, row_bins, row_series
 from .solve import levenberg_marquardt
 from ..spectral.segments import KERNEL_OFFSETS, Segments
 from ..model.spline import log_phi_at
@@ -82,8 +82,7 @@ MAX_LEVERAGE = 0.9
 #: the misfit's trend test (``_roughness``): the degree of its smooth part and the fewest rows a series needs.
 #: A poor fit is a lumpy texture's (``Summary.lumpy``) where at least ``LUMPY_SERIES`` series have a trend ratio,
 #: their median at most ``LUMPY_F`` bin factors and their largest at most ``LUMPY_F_MAX`` ones: its misfit has no
-#: trend in any block. It stays ``poor_fit``: on 300-mode textures the spread's errors cover 0.70 / 0.93 of
-#: the truths at 1 / 2 sigma on slips near an axis, but 0.50 / 0.89 on oblique ones (``benchmarks/lumpy.py``)
+#: trend in any block; the analysis refits it with the texture at each bin as random effects (``residuals``)
 ROUGHNESS_DEGREE = 5
 ROUGHNESS_MIN_ROWS = 14
 LUMPY_SERIES = 8
@@ -381,7 +380,8 @@ def _build_prepared(hertz_window, v0, a0, v_s, a_s, *, b, spec, om, i0, band_w, 
         w1=w1, w2=w2, mask_s11=mask_s11, mask_h=mask_h, mask_c22=mask_c22, mask_xy=mask_xy,
         s11_weight=jnp.sqrt(dof), c22_weight=jnp.sqrt(k1), c22_offset=digamma(k1) - digamma(k1 + 1.0),
         xy_c_weight=jnp.sqrt(k_xy), xy_c_offset=digamma(k_xy) - digamma(dof), log_noise=noise,
-        prior_center=theta0, prior_inv_sd=prior_inv_sd, smooth_inv_sd=1.0 / jnp.asarray(settings.smoothness))
+        prior_center=theta0, prior_inv_sd=prior_inv_sd, smooth_inv_sd=1.0 / jnp.asarray(settings.smoothness),
+        lump_sd=jnp.zeros(N_LUMP_SD, theta0.dtype), lump_rows=jnp.zeros((N_DATA_ROWS, N_LUMP), theta0.dtype))
     # speed starts: as found, and each axis in turn as the major one at its own pair's speed, the other at
     # 0.15 of it (a pair that hears only window leakage, slip across it, reads as a fast slip along it); then
     # each axis with the other at 0.01 of it, which the Hertz window, whose sharp edge leaks more, explores too
@@ -398,10 +398,12 @@ def _build_prepared(hertz_window, v0, a0, v_s, a_s, *, b, spec, om, i0, band_w, 
     return Prepared(data, jax.vmap(start)(starts), free, stage1, b)
 
 
-def statistics(theta, r, jac, free):
+def statistics(theta, r, jac, free, data: JointData):
     """``lsq.fit_statistics`` of the joint residuals: cov (unit x redchi), chi2, n_data, dof, redchi, cond,
-    decrement, step_sigma."""
-    return fit_statistics(theta, r, jac, free, n_prior=n_prior(theta.shape[0]))
+    decrement, step_sigma. The texture random effects' rows count in chi2 (the penalty of their marginal
+    quadratic form), not as data, and the effects take their degrees of freedom (``residuals.lump_dof``)."""
+    return fit_statistics(theta, r, jac, free, n_prior=n_prior(theta.shape[0]), n_aux=n_lump_rows(data),
+                          n_effects=lump_dof(data))
 
 
 def settled_physics(step_sigma, free):
@@ -520,7 +522,7 @@ def _roughness(r, data: JointData):
     texture (persistent modes every segment hears) scatters the spectra from bin to bin, far above the segments'
     noise, and leaves no trend (medians of 0.29-2.93), except where a solve ended in a wrong basin: there one
     block keeps a trend (its largest ratio 9-30)."""
-    idx = row_series(data)
+    idx = row_series(data)[:-N_LUMP_SERIES]                                          # the data's series
     y = r[jnp.asarray(idx)]                                                         # (S, L)
     use = y != 0
     n = jnp.sum(use, -1)
@@ -555,7 +557,8 @@ class Start(NamedTuple):
     from the first row, or, of the first ``n`` rows, from the one of lowest cost under the program's window
     (a refit: ``start_at``; the Hertz window from the Gaussian program's ends: ``candidates``). scout:
     explore all ``N_STARTS`` of the program's own starts and stop at their ends (``Summary.ends``), with no
-    final iterations (``scouting``).
+    final iterations (``scouting``). lumps, lump_rows: the texture random effects' sds and the data rows'
+    derivatives by them that a refit keeps (``JointData.lump_sd``, ``JointData.lump_rows``).
     """
 
     theta: jax.Array
@@ -563,19 +566,24 @@ class Start(NamedTuple):
     use: jax.Array
     n: jax.Array
     scout: jax.Array
+    lumps: jax.Array
+    lump_rows: jax.Array
 
 
 def no_start(n_params: int = N_PHYS + N_KNOTS) -> Start:
     """The ``Start`` that lets ``core`` explore its own starts."""
     return Start(np.zeros((N_STARTS, n_params)), np.zeros(n_params, bool), np.asarray(False), np.asarray(1),
-                 np.asarray(False))
+                 np.asarray(False), np.zeros(N_LUMP_SD), np.zeros((N_DATA_ROWS, N_LUMP)))
 
 
-def start_at(theta, free) -> Start:
-    """Refit from ``theta`` (P,) over ``free`` (P,)."""
+def start_at(theta, free, lumps=None, lump_rows=None) -> Start:
+    """Refit from ``theta`` (P,) over ``free`` (P,), with the texture random effects of sds ``lumps`` and rows'
+    derivatives ``lump_rows`` (None: none)."""
     theta = np.asarray(theta, float)
+    lumps = np.zeros(N_LUMP_SD) if lumps is None else np.asarray(lumps, float)
+    lump_rows = np.zeros((N_DATA_ROWS, N_LUMP)) if lump_rows is None else np.asarray(lump_rows, float)
     return Start(np.broadcast_to(theta, (N_STARTS,) + theta.shape).copy(), np.asarray(free, bool),
-                 np.asarray(True), np.asarray(1), np.asarray(False))
+                 np.asarray(True), np.asarray(1), np.asarray(False), lumps, lump_rows)
 
 
 def candidates(thetas, free) -> Start:
@@ -584,7 +592,7 @@ def candidates(thetas, free) -> Start:
     thetas = np.asarray(thetas, float)
     batch = thetas.shape[:-2]
     return Start(thetas, np.asarray(free, bool), np.full(batch, True), np.full(batch, thetas.shape[-2]),
-                 np.full(batch, False))
+                 np.full(batch, False), np.zeros(batch + (N_LUMP_SD,)), np.zeros(batch + (N_DATA_ROWS, N_LUMP)))
 
 
 def scouting(n_params: int = N_PHYS + N_KNOTS) -> Start:
@@ -669,7 +677,7 @@ class Errors(NamedTuple):
 def errors(record: Record, data: JointData, free, i0, theta, r, jac, hertz=None) -> Errors:
     """Step 5 of the module and the status at the solution ``theta`` (fitted over ``free``), with its residuals
     and their Jacobian there; i0: the window's first bin."""
-    cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free)
+    cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free, data)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     settled = settled_physics(step_sigma, free)
     converged = finite & ((decrement < DECREMENT_TOL) | settled)

@@ -28,10 +28,17 @@ import numpy as np
 from .._numerics import tiny
 from ..model import cross_pair
 
-__all__ = ["N_FIT", "N_MARGIN", "Measured", "JointData", "measure", "grid_offsets", "half_offsets"]
+__all__ = ["N_LUMP_SD", "N_LUMP", "N_DATA_ROWS", "N_FIT", "N_MARGIN", "Measured", "JointData", "measure", "grid_offsets", "half_offsets"]
 
+#: the sds of the texture's random effects (``JointData.lump_sd``), and the effects at each bin: the log power
+#: each pair hears and the angular factor's four coefficients (``forward.texture_tangents``)
+N_LUMP_SD = 3
+N_LUMP = 6
 #: bins in the fit's window
 N_FIT = 48
+#: the data rows of the joint residuals (``residuals.blocks``): per bin, each pair's shallow PSD, ratio and
+#: conditioned deep PSD, the chain's whitened coefficients (2 and 3 complex) and its two residual PSDs
+N_DATA_ROWS = (3 * 2 + 2 * 2 + 2 * 3 + 2) * N_FIT
 #: integer-grid points of the model beyond each end of the window (the kernel's reach, 6 bins, and one
 #: more for the cubic interpolation to half bins)
 N_MARGIN = 7
@@ -81,6 +88,10 @@ class JointData(NamedTuple):
     c22_offset: scalars; xy_c_weight, xy_c_offset: (2,). log_noise: (2, 2) measured log white-noise
     PSDs [[x1, x2], [y1, y2]]. prior_center, prior_inv_sd: (P,) Gaussian priors on the
     parameters (inverse sd 0: none). smooth_inv_sd: inverse sd of the knots' second differences.
+    lump_sd: (``N_LUMP_SD``,) the sds of a lumpy texture's random effects at each bin (``residuals``): its log
+    power, common to both pairs and each pair's own, and its angular factor; zeros: a smooth texture.
+    lump_rows: (R_d, ``N_LUMP``) the data rows' derivatives by those effects (``residuals.lump_rows``, at the
+    fit the random effects' refit starts from; zeros: none).
     """
 
     meas: Measured
@@ -109,6 +120,8 @@ class JointData(NamedTuple):
     prior_center: jax.Array
     prior_inv_sd: jax.Array
     smooth_inv_sd: jax.Array
+    lump_sd: jax.Array
+    lump_rows: jax.Array
 
 
 def _log(x):

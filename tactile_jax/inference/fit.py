@@ -317,9 +317,11 @@ class _Refitter(NamedTuple):
     rec: Record
     settings: Settings
     window: str
+    lumps: np.ndarray | None = None
+    lump_rows: np.ndarray | None = None
 
     def __call__(self, theta, free) -> Summary:
-        return run.refit_analysis(self.rec, self.settings, theta, free, self.window)
+        return run.refit_analysis(self.rec, self.settings, theta, free, self.window, self.lumps, self.lump_rows)
 
 
 class _Oblique(NamedTuple):
@@ -342,15 +344,17 @@ def result_of(a: Analysis, rec: Record, options: FitOptions, *, curvature_radius
 
 def _layered(rec: Record, settings: Settings, a: Analysis, options: FitOptions, curvature_radius) -> FitResult:
     window = WINDOWS[int(a.window)]
-    refit = _Refitter(rec, settings, window)
+    lumps = np.asarray(a.lumps)
+    refit = _Refitter(rec, settings, window, lumps, np.asarray(a.summary.data.lump_rows))
     s = summary_of(a)
     chosen, note = _select(refit, s, options)
     margin = None
     if chosen is not None:
         _, s, margin = chosen
     o_free = np.asarray(a.oblique_free, bool)
+    # the held speed's bound profiles the oblique fit, which a lumpy texture's refit does not have
     oblique = (_Oblique(np.asarray(a.oblique_theta), o_free, np.asarray(a.oblique_scales), float(a.oblique_chi2))
-               if (o_free != np.asarray(s.free, bool)).any() else None)
+               if (o_free != np.asarray(s.free, bool)).any() and not lumps.any() else None)
 
     def extras(res, s):
         add_profiles(res, s, refit, profile_minor=options.profile_minor, oblique=oblique)

@@ -30,10 +30,11 @@ import numpy as np
 
 from .._numerics import tiny
 from ..model import cross_pair
-from .data import JointData
+from .data import N_LUMP, JointData
 from ..model.lines import ENTRIES, log_matrix
 
-__all__ = ["PARAMS", "ANISO", "N_PHYS", "INDEX", "param_names", "ModelSpectra", "spectra_at_bins", "half_bin_index"]
+__all__ = ["PARAMS", "ANISO", "N_PHYS", "INDEX", "param_names", "ModelSpectra", "spectra_at_bins", "texture_tangents",
+           "half_bin_index", "LUMP_SHIFT", "N_LUMP", "lump_basis"]
 
 #: names of the leading parameters; ``log_phi_j`` follow for the texture knots
 PARAMS = ("log_vx", "log_vy", "log_a", "log_gx", "log_gy", "log_ay", "log_noise", "aniso_p", "aniso_q", "aniso_p4",
@@ -114,9 +115,16 @@ def _window_average(half, sign, weight, log_kernel, n_fit):
     return top, jnp.sum(jnp.exp(terms - top[..., None]) * _windows(sign * weight, n_fit, n_kernel), axis=-1)
 
 
-def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
+#: (2, 10) how a log texture power the x pair hears (row 0) and the y pair hears (row 1) enters the log density of
+#: each entry of ``ENTRIES``: a pair's own entries fully, the x-y entries (the modes both pairs hear) by half
+LUMP_SHIFT = np.array([[1.0 if (i < 2 and j < 2) else 0.5 if (i < 2) != (j < 2) else 0.0 for i, j in ENTRIES],
+                       [1.0 if (i >= 2 and j >= 2) else 0.5 if (i < 2) != (j < 2) else 0.0 for i, j in ENTRIES]])
+
+
+def spectra_at_bins(theta, data: JointData, hertz=None, shift=None) -> ModelSpectra:
     """``ModelSpectra`` of the parameters ``theta`` (P,) for ``data``, under the Gaussian contact window, or
-    under the Hertz window where ``hertz`` holds its table's coefficients (``model.hertz``)."""
+    under the Hertz window where ``hertz`` holds its table's coefficients (``model.hertz``). shift: (2,) log
+    texture power added to what the x and the y pair hear (``LUMP_SHIFT``; None: 0)."""
     i = INDEX
     phys = jnp.exp(jnp.stack([theta[i["log_vx"]], theta[i["log_vy"]], theta[i["log_a"]]]))
     aniso = jnp.stack([theta[i[name]] for name in ANISO])
@@ -126,6 +134,8 @@ def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
     level, gx, gy = theta[i["log_ay"]], theta[i["log_gx"]], theta[i["log_gy"]]
     amp = jnp.stack([0.0, gx, 0.5 * level, 0.5 * level + gy])
     dens = dens + jnp.stack([amp[i] + amp[j] for i, j in ENTRIES])[:, None]
+    if shift is not None:
+        dens = dens + (shift @ LUMP_SHIFT.astype(dens.dtype))[:, None]
     # the Hertz window's densities are computed on the half bins themselves: its spectrum's nulls (the disk's
     # edge) make the y pair's densities dip between integer bins at slips along x, which no interpolation of
     # them follows (interpolated, the fit reads vy 0.05-0.12 cm/s for a truth of 0, beyond its error, at
@@ -167,3 +177,29 @@ def spectra_at_bins(theta, data: JointData, hertz=None) -> ModelSpectra:
         out.append((beta, jnp.log(res) + ref))
     return ModelSpectra(b11, b12 - b11, log_c22, out[0][0], out[1][0], jnp.stack([out[0][1], out[1][1]]))
 
+
+
+def lump_basis(n_params: int) -> np.ndarray:
+    """(P, ``N_LUMP``) the texture's random effects as directions in the parameters: the x pair's log power (every
+    knot up, the y level down: the spline's basis sums to one), the y pair's (its level ``log_ay``) and the
+    angular factor's coefficients. The model's derivatives by the effects (``texture_tangents``) are its Jacobian
+    times this."""
+    basis = np.zeros((n_params, N_LUMP))
+    basis[N_PHYS:, 0] = 1.0
+    basis[INDEX["log_ay"], 0] = -1.0
+    basis[INDEX["log_ay"], 1] = 1.0
+    for k, name in enumerate(ANISO):
+        basis[INDEX[name], 2 + k] = 1.0
+    return basis
+
+
+def texture_tangents(theta, data: JointData, hertz=None) -> ModelSpectra:
+    """Each field of ``spectra_at_bins`` differentiated (leading axis ``N_LUMP``) by the log texture
+    power the x pair and the y pair hear (``LUMP_SHIFT``) and by the texture's angular factor (``ANISO``: how
+    its power is spread along each line k . v = omega), by forward differentiation (the line integrals are
+    computed once). A bin's log PSD moves with the texture's share of its power: below 1 where the noise
+    floor is heard."""
+    ia = np.array([INDEX[name] for name in ANISO])
+    x0 = jnp.zeros(N_LUMP, theta.dtype)
+    _, lin = jax.linearize(lambda x: spectra_at_bins(theta.at[ia].add(x[2:]), data, hertz, x[:2]), x0)
+    return jax.vmap(lin)(jnp.eye(N_LUMP, dtype=theta.dtype))

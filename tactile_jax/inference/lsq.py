@@ -100,20 +100,23 @@ def gauss_newton_decrement(r, jac, free):
     return _gauss_newton_step(r, jac, free, d, inv)[1]
 
 
-def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: bool = True, n_prior: int = 0):
+def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: bool = True, n_prior: int = 0,
+                   n_aux: int = 0, n_effects=0.0):
     """Fit statistics at ``theta``: (cov, chi2, n_data, dof, redchi, cond, decrement, step_sigma), as in
     ``LsqResult``.
 
-    r_all: (K,) residuals, the last ``n_prior`` of them priors. jac_all: (K, P) their Jacobian
-    (fixed columns are zeroed here). free: (P,) bool.
+    r_all: (K,) residuals, the last ``n_prior`` of them priors, the ``n_aux`` before those counted in chi2 but
+    not as data (a random effect's rows), whose effects take ``n_effects`` degrees of freedom. jac_all: (K, P)
+    their Jacobian (fixed columns are zeroed here). free: (P,) bool.
     """
     jac_all = jac_all * free[None, :]
     n_res = r_all.shape[0] - n_prior
     r, jac = r_all[:n_res], jac_all[:n_res]
-    n_data = jnp.sum(jnp.any(jac != 0, axis=1) | (r != 0))
+    counted = r_all.shape[0] - n_prior - n_aux
+    n_data = jnp.sum(jnp.any(jac[:counted] != 0, axis=1) | (r[:counted] != 0))
     n_free = jnp.sum(free)
     chi2 = jnp.sum(jnp.square(r))
-    dof = jnp.maximum(n_data - n_free, 1)
+    dof = jnp.maximum(n_data - n_free - n_effects, 1)
     redchi = chi2 / dof
     d, scaled, inv = equilibrated_inverse(jac_all.T @ jac_all, free)
     evals = jnp.linalg.eigvalsh(scaled)

@@ -330,12 +330,19 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
                         else "2x or more the segments' scatter"))
     if res.cond > 1e10:
         notes.append(f"near-degenerate parameters (condition number {res.cond:.2g}): see the correlations")
-    if status == Status.POOR_FIT and bool(s.lumpy):
+    lumps = np.asarray(s.data.lump_sd, float) if s.data is not None else np.zeros(1)
+    if lumps.any():
+        what = ("lumpy texture: the texture's power at each bin and its spread along the bin's line k . v = omega "
+                f"fitted as random effects (sd {float(np.hypot(lumps[0], lumps[1])):.2f} in log power), as a "
+                "texture of a few hundred persistent modes needs")
+        notes.insert(0, what if status != Status.POOR_FIT else
+                     f"poor fit, {what}; the spectra still scatter {res.redchi:.1f}x their noise (trend ratio "
+                     f"{float(s.roughness):.1f}): the errors come from that scatter")
+    elif status == Status.POOR_FIT and bool(s.lumpy):
         notes.insert(0, f"poor fit, lumpy texture: the spectra scatter {res.redchi:.1f}x their noise from bin to bin "
                         f"with no trend across frequency (trend ratio {float(s.roughness):.1f}), as a texture of a few "
                         "hundred persistent modes makes them; the values are the smooth texture model's, with errors "
-                        "from that scatter, which hold for slips near an axis under small contacts and run small "
-                        "on oblique slips and contacts above 5 mm")
+                        "from that scatter")
     elif status == Status.POOR_FIT:
         notes.insert(0, f"poor fit: reduced chi-square {res.redchi:.1f}, trend ratio {float(s.roughness):.1f} across "
                         "frequency; the joint model does not describe these spectra (a line texture, another window, "

@@ -302,9 +302,11 @@ def analyse_many(recs: list[Record], settings: Settings, choices: Choices = Choi
     return _unstack(jax.tree.map(np.asarray, out), n)
 
 
-def refit_analysis(rec: Record, settings: Settings, theta, free, window: str) -> Summary:
-    """The analysis program from ``theta`` over ``free`` under ``window`` with every choice held: the kept fit's
-    ``Summary`` (what ``fit``'s profiles and model selection refit)."""
+def refit_analysis(rec: Record, settings: Settings, theta, free, window: str, lumps=None, lump_rows=None) -> Summary:
+    """The analysis program from ``theta`` over ``free`` under ``window`` with every choice held, the texture's
+    random effects (``start_at``'s lumps and lump_rows) included: the kept fit's ``Summary`` (what ``fit``'s
+    profiles and model selection refit)."""
     a = analyse_one(rec, settings, Choices(window=1 + ("gaussian", "hertz").index(window), texture=1, direction=1,
-                                           test_window=False, refit=True), start_at(theta, free))
+                                           test_window=False, refit=True),
+                    start_at(theta, free, lumps, lump_rows))
     return summary_of(a)
