@@ -264,10 +264,15 @@ def fit_report(result, *, truth: dict | None = None) -> str:
 
     lines.append("[[Fit Statistics]]")
     n_res, n_par = int(getattr(result, "n_residuals", 0) or 0), int(result.n_params or 0)
+    dof = str(n_res - n_par) if n_res and n_par else "n/a"
+    if n_res and n_par and result.chi2 and result.redchi:
+        effective = float(result.chi2) / float(result.redchi)     # less what a lumpy texture's random effects take
+        if n_res - n_par - effective > 0.5:
+            dof = f"{effective:.1f} (the texture's random effects take {n_res - n_par - effective:.1f})"
     stats = (("residuals", f"{n_res} (from {int(result.n_bins)} usable frequency bins)" if n_res
               else "n/a"),
              ("variables", str(n_par) if n_par else "n/a"),
-             ("degrees of freedom", str(n_res - n_par) if n_res and n_par else "n/a"),
+             ("degrees of freedom", dof),
              ("chi-square", _num(result.chi2, 6)), ("reduced chi-square", _num(result.redchi, 5)),
              ("Akaike info crit", _num(result.aic, 6)), ("Bayesian info crit", _num(result.bic, 6)),
              ("condition number", _num(result.cond, 3)))
