@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tactile_jax.inference import core, residuals
+from tactile_jax.inference.data import N_DATA_ROWS
 from tactile_jax.inference.residuals import N_LUMP_SERIES, row_bins, row_series
 
 jax.config.update("jax_enable_x64", True)
@@ -51,6 +52,7 @@ def test_rows_follow_the_blocks_layout():
     # 3 x 2 L level blocks, 4 L + 6 L chain rows, 2 L residual PSDs, then the random effects' rows
     assert bins.shape == (S_ALL * L,)
     assert np.bincount(bins).tolist() == [S_ALL] * L
+    assert residuals.n_data_rows(_data()) == N_DATA_ROWS == S_DATA * L      # the count the program's shapes use
 
 
 def test_spread_is_the_cluster_jackknife_and_flags_only_shared_misfit():

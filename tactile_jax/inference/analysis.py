@@ -138,8 +138,8 @@ class Stages(NamedTuple):
     the solution (``core.STATUS``); active (K,): whether the stage ran; hertz (K,): its window; errors:
     its ``core.Errors`` (zeros where not computed: a stage off, or G0's scouting); r, jac, model: the
     residuals (K, R), their Jacobian (K, R, P) and the model's spectra at its solution; iterations (K,):
-    the evaluations of the residuals and their Jacobian it took; lumps (K, ``N_LUMP_SD``), lump_rows (K, R_d,
-    ``N_LUMP``): the texture random effects it fitted with (``JointData.lump_sd``, ``JointData.lump_rows``)."""
+    the evaluations of the residuals and their Jacobian it took; lumps (K, ``N_LUMP_SD``): the sds of the texture
+    random effects it fitted with (``JointData.lump_sd``; their rows follow from the Jacobian it started from)."""
 
     theta: jax.Array
     free: jax.Array
@@ -155,7 +155,6 @@ class Stages(NamedTuple):
     model: ModelSpectra
     iterations: jax.Array
     lumps: jax.Array
-    lump_rows: jax.Array
 
 
 class Analysis(NamedTuple):
@@ -177,7 +176,7 @@ class Analysis(NamedTuple):
     direction_forced; oblique: the fit with both speeds free where one is held (theta, free, scales
     (P,) each, chi2; else the kept fit's). window_needed; window_rise: chi2's rise with a held negligible;
     window_threshold. lumps: (``N_LUMP_SD``,) the sds of the texture's random effects at each bin
-    (``JointData.lump_sd``) where the kept fit models them (TL), else zeros. stages: ``Stages``.
+    (``JointData.lump_sd``) of the kept fit (TL's, or those a refit was given), else zeros. stages: ``Stages``.
     """
 
     summary: Summary
@@ -228,7 +227,8 @@ class _Plan(NamedTuple):
 
 def _either(theta, args):
     """The joint residuals and model under the window ``args[3]`` says (traced; ``args[2]`` None: the Gaussian
-    window's alone), with the texture random effects' sds and rows ``args[4:]``. Each window is computed only where some record wants it: on one record, one window;
+    window's alone), with the texture random effects' sds and rows ``args[4:]``. Each window is computed only
+    where some record wants it: on one record, one window;
     under ``vmap``, a chunk whose records all want one window (every stage but the texture and direction
     refits) computes that one alone, instead of both for every record."""
     data_g, data_h, coef, use_hertz, lumps, rows = args
@@ -538,11 +538,15 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
 
     basis = jnp.asarray(lump_basis(p), dtype)
 
+    def effect_rows(st, d):
+        """The data rows' derivatives by the texture's random effects, from the Jacobian where stage ``d`` ended
+        (``forward.lump_basis``): held there by TL's refit from d."""
+        return -st.jac[d][:N_DATA_ROWS] @ basis
+
     def plan_tl(st, ends):
         d, hertz = direction_index(st)
         wanted = errors_at(st, d).lumpy & _compared(st, d) & ~refit
-        # the data rows' derivatives by the random effects, from the Jacobian at d (``forward.lump_basis``)
-        rows = -st.jac[d][:N_DATA_ROWS] @ basis
+        rows = effect_rows(st, d)
         sd = lump_scale(st.r[d][:N_DATA_ROWS], rows, data_g)
         return from_point(st.theta[d], st.free[d], hertz, wanted & jnp.any(sd > 0), lumps=sd, lump_rows=rows)
 
@@ -582,7 +586,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
             blank),
             lambda: blank)
         new = (theta, plan.free, chi2, redchi, n_data.astype(dtype), status, plan.active, plan.hertz, e, r, jac, model,
-               n_iter, plan.lumps, plan.lump_rows)
+               n_iter, plan.lumps)
         st = jax.tree.map(lambda whole, x: whole.at[k].set(x), st, Stages(*new))
         return (st, jnp.where(k == G0, last, ends)), None
 
@@ -598,7 +602,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
                   jnp.full(n, jnp.inf, dtype), jnp.zeros(n, dtype), jnp.full(n, 4, jnp.int32), jnp.zeros(n, bool),
                   jnp.zeros(n, bool), stacked(blank), jnp.zeros((n,) + r_shape.shape, dtype),
                   jnp.zeros((n,) + r_shape.shape + (p,), dtype), stacked(model_shape), jnp.zeros(n, jnp.int32),
-                  jnp.zeros((n, N_LUMP_SD), dtype), jnp.zeros((n, N_DATA_ROWS, N_LUMP), dtype))
+                  jnp.zeros((n, N_LUMP_SD), dtype))
     (st, _), _ = jax.lax.scan(stage, (init, prep_g.starts), jnp.arange(n))
 
     # the choices, from where the stages ended
@@ -614,8 +618,9 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     theta, free, e = st.theta[kept], st.free[kept], errors_at(st, kept)          # the kept fit
     e = e._replace(lumpy=e.lumpy | lumped)
     jac, model = st.jac[kept], jax.tree.map(lambda x: x[kept], st.model)
-    lumps = jnp.where(lumped, st.lumps[TL], 0.0)
-    rows = jnp.where(lumped, st.lump_rows[TL], 0.0)
+    # the random effects the kept fit has: TL's, from d's Jacobian; a refit's, given in its start
+    lumps = st.lumps[kept]
+    rows = jnp.where(lumped, effect_rows(st, d), jnp.where(refit, jnp.asarray(start.lump_rows, dtype), 0.0))
     data_g, data_h = (x._replace(lump_sd=lumps, lump_rows=rows) for x in (data_g, data_h))
     summary = summary_at(theta, free, e, Located(i0, b.n_leak, b.k0, b.speed0), model, jac, data_g)
     e_d = errors_at(st, d)

@@ -28,7 +28,8 @@ import numpy as np
 from .._numerics import tiny
 from ..model import cross_pair
 
-__all__ = ["N_LUMP_SD", "N_LUMP", "N_DATA_ROWS", "N_FIT", "N_MARGIN", "Measured", "JointData", "measure", "grid_offsets", "half_offsets"]
+__all__ = ["N_LUMP_SD", "N_LUMP", "N_DATA_ROWS", "N_FIT", "N_MARGIN", "Measured", "JointData", "measure",
+           "grid_offsets", "half_offsets"]
 
 #: the sds of the texture's random effects (``JointData.lump_sd``), and the effects at each bin: the log power
 #: each pair hears and the angular factor's four coefficients (``forward.texture_tangents``)

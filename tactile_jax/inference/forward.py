@@ -178,7 +178,6 @@ def spectra_at_bins(theta, data: JointData, hertz=None, shift=None) -> ModelSpec
     return ModelSpectra(b11, b12 - b11, log_c22, out[0][0], out[1][0], jnp.stack([out[0][1], out[1][1]]))
 
 
-
 def lump_basis(n_params: int) -> np.ndarray:
     """(P, ``N_LUMP``) the texture's random effects as directions in the parameters: the x pair's log power (every
     knot up, the y level down: the spline's basis sums to one), the y pair's (its level ``log_ay``) and the

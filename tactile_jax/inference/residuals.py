@@ -95,8 +95,8 @@ def _cholesky_solve(s, b):
 def _profiled(r, data: JointData):
     """The data rows with each bin's texture random effects (``forward.texture_tangents``: the log power each
     pair hears, the angular factor's coefficients) marginalised with the prior covariance C = M M^T
-    (``_prior_factor(data.lump_sd)``; the rows' derivatives by them ``data.lump_rows``), the ``N_LUMP_SERIES`` L rows that complete its quadratic form, and the
-    effects' degrees of freedom.
+    (``_prior_factor(data.lump_sd)``; the rows' derivatives by them ``data.lump_rows``), the ``N_LUMP_SERIES`` L
+    rows that complete its quadratic form, and the effects' degrees of freedom.
 
     With J_l the bin's rows' derivatives by its effects, A = J_l^T J_l and b = J_l^T r, the quadratic form of
     the marginal likelihood, r^T (I + J C J^T)^-1 r, is min over delta of |r - J delta|^2 + delta^T C^-1 delta,
@@ -119,8 +119,8 @@ def _profiled(r, data: JointData):
 
 def blocks(model: ModelSpectra, meas: Measured, data: JointData):
     """The data residuals, flat: shallow log PSDs (2 L), log ratios (2 L), conditioned deep PSDs (2 L),
-    the chain's whitened coefficients (4 L + 6 L) and its log residual PSDs (2 L); then 3 L rows of the
-    texture's random effects at each bin (``_profiled``; zeros where ``data.lump_sd`` is)."""
+    the chain's whitened coefficients (4 L + 6 L) and its log residual PSDs (2 L); then ``N_LUMP_SERIES`` L rows
+    of the texture's random effects at each bin (``_profiled``; zeros where ``data.lump_sd`` is)."""
     r = _data_rows(model, meas, data)
     # the random effects only where some record of a chunk has them (with none, ``_profiled`` is the identity)
     return jax.lax.cond(any_in_batch(jnp.any(data.lump_sd > 0)), lambda: jnp.concatenate(_profiled(r, data)[:2]),
@@ -134,7 +134,9 @@ def n_data_rows(data: JointData) -> int:
 
 def lump_dof(data: JointData):
     """The degrees of freedom the texture's random effects take (0 where ``data.lump_sd`` is)."""
-    return _profiled(jnp.zeros(n_data_rows(data), data.omega.dtype), data)[2]
+    zero = jnp.zeros((), data.omega.dtype)
+    return jax.lax.cond(any_in_batch(jnp.any(data.lump_sd > 0)),
+                        lambda: _profiled(jnp.zeros(n_data_rows(data), data.omega.dtype), data)[2], lambda: zero)
 
 
 def lump_scale(r, jl, data: JointData, min_weight: float = 1.0):
