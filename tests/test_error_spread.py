@@ -149,6 +149,34 @@ def test_random_effects_give_the_marginal_quadratic_form_and_their_degrees_of_fr
     assert np.array_equal(np.asarray(rows0), r) and not np.asarray(extra0).any() and float(edf0) == 0.0
 
 
+def test_profiled_least_squares_is_generalised_least_squares():
+    """``residuals.profile`` of a linear model's residuals and Jacobian (data rows, the effects' zero rows, priors):
+    its least-squares solution is the one of the marginal likelihood, sum over bins of
+    r_b^T (I + J_l C J_l^T)^-1 r_b plus the priors; the priors pass unchanged."""
+    rng = np.random.default_rng(5)
+    sd = np.array([0.5, 0.2, 0.3])
+    data, jl, bins = _lumpy_data(rng, sd)
+    n, p = jl.shape[0], 4
+    used = jl.any(1)
+    x = np.where(used[:, None], rng.standard_normal((n, p)), 0.0)
+    r0 = np.where(used, rng.standard_normal(n), 0.0)
+    prior_x, prior_r = 0.3 * np.eye(p), rng.standard_normal(p)
+    full_x = np.concatenate([x, np.zeros((residuals.N_LUMP_SERIES * L, p)), prior_x])
+    full_r = np.concatenate([r0, np.zeros(residuals.N_LUMP_SERIES * L), prior_r])
+    px, pr = (np.asarray(jax.jit(lambda a: residuals.profile(a, data))(jnp.asarray(a))) for a in (full_x, full_r))
+    np.testing.assert_array_equal(pr[-p:], prior_r)
+    theta = np.linalg.lstsq(px, -pr, rcond=None)[0]
+    c = np.asarray(residuals._prior_factor(jnp.asarray(sd)))
+    c = c @ c.T
+    normal, rhs = prior_x.T @ prior_x, -prior_x.T @ prior_r
+    for b in range(L):
+        m = bins == b
+        w = np.linalg.inv(np.eye(m.sum()) + jl[m] @ c @ jl[m].T)
+        normal += x[m].T @ w @ x[m]
+        rhs -= x[m].T @ w @ r0[m]
+    np.testing.assert_allclose(theta, np.linalg.solve(normal, rhs), rtol=1e-9, atol=1e-12)
+
+
 def test_lump_scale_measures_the_pairs_powers_spread():
     """Rows made of each bin's pair powers (common sd 0.5, each pair's own 0.3) plus unit noise: the moments give
     the two sds back."""

@@ -82,6 +82,40 @@ def test_a_steady_misfit_is_no_reason_to_analyse_again_and_a_rise_is():
     assert not misfit_rose(1.9, []) and misfit_rose(2.1, [])
 
 
+def _update(lump_sd):
+    """An update of a slip (3, 1) cm/s, a 1.5 mm, as numpy arrays (nothing compiled)."""
+    from tactile_jax.inference.core import N_KNOTS, N_PHYS, Errors
+    from tactile_jax.inference.forward import INDEX
+    from tactile_jax.track.step import TrackState, Update
+
+    p = N_PHYS + N_KNOTS
+    theta = np.zeros(p)
+    theta[[INDEX["log_vx"], INDEX["log_vy"], INDEX["log_a"]]] = np.log([0.03, 0.01, 1.5e-3])
+    free = np.zeros(p, bool)
+    free[[INDEX["log_vx"], INDEX["log_vy"], INDEX["log_a"]]] = True
+    sd = np.where(free, 0.02, 0.0)
+    e = Errors(np.diag(sd ** 2), sd, np.ones(p), np.array(1.0), np.array(500.0), np.array(1.2), np.array(420.0),
+               np.array(1e3), np.array(1e-4), np.zeros(p), np.array(True), np.array(False), np.array(0), np.array(30),
+               np.array(True), np.zeros(p, bool), np.array(1.0), np.array(False))
+    state = TrackState(theta, free, np.zeros(N_KNOTS), theta, np.zeros((10, p)), np.array(3), np.ones((2, 48), bool),
+                       np.array(1), np.array(0.2), np.asarray(lump_sd, float))
+    return Update(e, theta, np.array(0.2), np.array(False), np.array(True), state, np.array([30, 30]),
+                  np.array([0.03, 0.01]))
+
+
+@pytest.mark.parametrize("lump_sd", [(0.0, 0.0, 0.0), (0.4, 0.2, 0.45)])
+def test_an_update_becomes_a_row(lump_sd):
+    """An update's arrays make the row ``fit`` would write: its values, and the random effects where the
+    acquisition fitted a lumpy texture with them."""
+    from tactile_jax.inference.result import result_from_summary
+    from tactile_jax.track.tracker import step_summary
+
+    res = result_from_summary(step_summary(_update(lump_sd)))
+    assert res.status == "ok" and res.vx == pytest.approx(0.03) and res.vy_err == pytest.approx(0.01 * 0.02)
+    assert res.cross_pairs == 2
+    assert ("random effects" in res.message) == any(lump_sd)
+
+
 def test_bad_blocks_are_one_line_errors():
     tracker = Tracker(FS, source="arm.h5")
     with pytest.raises(TactileInputError, match=r"arm.h5.*shape \(4, n\)"):

@@ -16,7 +16,7 @@ from .data import N_LUMP, JointData, Measured
 from .forward import N_PHYS, ModelSpectra, spectra_at_bins
 
 __all__ = ["blocks", "row_bins", "row_series", "residuals", "residuals_and_model", "n_prior", "n_lump_rows",
-           "lump_scale", "lump_dof", "lump_rows", "n_data_rows", "N_LUMP_SERIES"]
+           "lump_scale", "lump_dof", "lump_rows", "n_data_rows", "profile", "N_LUMP_SERIES"]
 
 #: rows of the texture's random effects per bin (``_profiled``): one per effect
 N_LUMP_SERIES = N_LUMP
@@ -115,6 +115,20 @@ def _profiled(r, data: JointData):
     delta = w @ m.T
     bins = jnp.asarray(row_bins(data)[:r.shape[0]])
     return r - jnp.sum(jl * delta[bins], -1), w.T.ravel(), edf
+
+
+def profile(r, data: JointData):
+    """All residuals (``residuals``' layout, the random effects' rows zero: ``data.lump_sd`` was zero where they
+    were computed) with the texture's random effects of ``data`` marginalised (``_profiled``); r (R,) or their
+    Jacobian (R, P), column by column: the map is linear. The effects' rows' derivatives ``data.lump_rows`` are
+    held, as in a fit with them."""
+    n, k = n_data_rows(data), n_lump_rows(data)
+
+    def one(x):
+        kept, w, _ = _profiled(x[:n], data)
+        return jnp.concatenate([kept, w, x[n + k:]])
+
+    return one(r) if r.ndim == 1 else jax.vmap(one, in_axes=1, out_axes=1)(r)
 
 
 def blocks(model: ModelSpectra, meas: Measured, data: JointData):

@@ -28,7 +28,11 @@ there.
 Texture knots and the weak priors' centre are held from the acquisition
 (``TrackState.log_knots``, ``prior_center``): the knots are the texture's
 coordinates, and ``core.prepare`` would otherwise move them with each window's
-Eq. 6 speed.
+Eq. 6 speed. So are the sds of a lumpy texture's random effects where the
+acquisition fitted them (``TrackState.lump_sd``; ``residuals.profile``): a 2 s
+window's tapers all hear the same few texture modes. The state keeps the
+Jacobian of the residuals without them, from which the effects' rows follow
+(``forward.lump_basis``) wherever it is refreshed or loses a bin.
 """
 
 from __future__ import annotations
@@ -39,8 +43,10 @@ import jax
 import jax.numpy as jnp
 
 from ..inference.core import N_PHYS, INDEX, POOR_FIT_REDCHI, Errors, Record, Settings, errors, fit_status, prepare
+from ..inference.data import N_LUMP_SD
+from ..inference.forward import lump_basis
 from ..inference.gauss_newton import damped_step
-from ..inference.residuals import residuals_and_model
+from ..inference.residuals import n_data_rows, profile, residuals_and_model
 
 __all__ = ["TrackState", "Update", "update", "REFRESH_AGE", "REFRESH_MOVE", "MAX_STEP", "LAMBDA", "SETTLED", "poor_fit_limit"]
 
@@ -65,7 +71,8 @@ class TrackState(NamedTuple):
     log_knots: the texture knots (log rad/m); prior_center: (P,) the weak priors' centre; jac: (R, P) the
     residuals' Jacobian kept for chord steps; i0: the fit window's first bin where ``jac`` was computed;
     mask_xy: (2, L) the bins of the x-y chain's blocks; age: chord updates since; moved: the last step in
-    sigmas."""
+    sigmas; lump_sd: (``data.N_LUMP_SD``,) the sds of a lumpy texture's random effects (zeros: none).
+    ``jac`` is that of the residuals without the random effects."""
 
     theta: jax.Array
     free: jax.Array
@@ -76,6 +83,7 @@ class TrackState(NamedTuple):
     mask_xy: jax.Array
     age: jax.Array
     moved: jax.Array
+    lump_sd: jax.Array
 
 
 class Update(NamedTuple):
@@ -129,7 +137,13 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
         r = residuals_and_model(theta, args)[0]
         return r, jnp.where((r != 0.0)[:, None], state.jac, 0.0)
 
-    r, jac = jax.lax.cond(stale, fresh, chord, state.theta)
+    r_raw, jac_raw = jax.lax.cond(stale, fresh, chord, state.theta)
+    # a lumpy texture's random effects: their rows' derivatives are directions in the parameters (the knots, the
+    # y level and the angular factor), read from the Jacobian as the analysis reads them
+    rows = -jac_raw[:n_data_rows(data)] @ jnp.asarray(lump_basis(state.theta.shape[0]), jac_raw.dtype)
+    data = data._replace(lump_sd=state.lump_sd, lump_rows=rows)
+    r, jac = jax.lax.cond(jnp.any(state.lump_sd > 0), lambda: (profile(r_raw, data), profile(jac_raw, data)),
+                          lambda: (r_raw, jac_raw))
     jm = jac * free
     delta, _, _ = damped_step(r, jm, free, LAMBDA)
     delta = delta * jnp.minimum(1.0, MAX_STEP / jnp.maximum(jnp.max(jnp.abs(delta)), 1e-30))
@@ -149,18 +163,21 @@ def update(record: Record, settings: Settings, state: TrackState, refresh=False)
     limit = poor_fit_limit(e.n_data, record.seg.bin_factor)
     e = e._replace(converged=finite & settled, settled=jnp.asarray(False), lumpy=e.lumpy & (e.redchi > limit),
                    status=fit_status(e.n_bins, finite, finite & settled, e.redchi, limit))
-    new = TrackState(theta, free, state.log_knots, state.prior_center, jac, b.i0, data.mask_xy,
-                     jnp.where(stale, 0, state.age + 1).astype(jnp.int32), moved)
+    new = TrackState(theta, free, state.log_knots, state.prior_center, jac_raw, b.i0, data.mask_xy,
+                     jnp.where(stale, 0, state.age + 1).astype(jnp.int32), moved, state.lump_sd)
     return Update(e, theta, moved, stale, taken, new, b.n_band, b.speed0)
 
 
-def state_from(record: Record, settings: Settings, theta, free, log_knots, prior_center, jac=None) -> TrackState:
+def state_from(record: Record, settings: Settings, theta, free, log_knots, prior_center, lump_sd=None,
+               jac=None) -> TrackState:
     """The ``TrackState`` of an acquisition's fit (``theta``, ``free`` of the analysis on ``record``, with the
-    texture knots and prior centre of its ``JointData``); ``jac``: None to compute it at the first update."""
+    texture knots, prior centre and random effects' sds of its ``JointData``; lump_sd None: none); ``jac``: None
+    to compute it at the first update."""
     prep = prepare(record, settings, False, pair_fits=False)
     data = prep.data._replace(log_k_knots=log_knots, prior_center=prior_center)
     r_shape = jax.eval_shape(lambda t: residuals_and_model(t, (data, settings.hertz))[0], theta).shape
     p = theta.shape[0]
     return TrackState(jnp.asarray(theta), jnp.asarray(free, bool), jnp.asarray(log_knots), jnp.asarray(prior_center),
                       jnp.zeros(r_shape + (p,), theta.dtype) if jac is None else jac, prep.band.i0, data.mask_xy,
-                      jnp.zeros((), jnp.int32), jnp.full((), jnp.inf, theta.dtype))
+                      jnp.zeros((), jnp.int32), jnp.full((), jnp.inf, theta.dtype),
+                      jnp.zeros(N_LUMP_SD, theta.dtype) if lump_sd is None else jnp.asarray(lump_sd, theta.dtype))

@@ -130,8 +130,24 @@ def misfit_rose(redchi: float, history) -> bool:
     return bool(redchi > MISFIT_RISE * level)
 
 
-class _Mask(NamedTuple):
+class _StepData(NamedTuple):
+    """What an update's row reads of its data (``result_from_summary``): the chain's bins and the random
+    effects' sds."""
+
     mask_xy: np.ndarray
+    lump_sd: np.ndarray
+
+
+def step_summary(u: step_mod.Update) -> Summary:
+    """The ``Summary`` of an update (numpy), which ``result_from_summary`` turns into a row."""
+    e = u.errors
+    loc = Located(u.state.i0, np.asarray(0), np.full(2, np.nan), u.speed0)
+    return Summary(np.asarray(u.theta), *(np.asarray(x) for x in (e.cov, e.sd)), np.asarray(u.state.free),
+                   *(np.asarray(x) for x in (e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
+                                             e.step_sigma, e.converged, e.settled)),
+                   np.asarray(e.status), np.asarray(e.n_bins), loc, np.asarray(e.jackknife), None, None, None,
+                   _StepData(np.asarray(u.state.mask_xy), np.asarray(u.state.lump_sd)), np.asarray(e.spread),
+                   np.asarray(e.roughness), np.asarray(e.lumpy))
 
 
 @functools.cache
@@ -326,7 +342,7 @@ class Tracker:
             window = WINDOWS[int(a.window)]
             settings = self._window_settings(window)
             state = _state_program()(run._as_jnp(rec), settings, s.theta, s.free, s.data.log_k_knots,
-                                     s.data.prior_center)
+                                     s.data.prior_center, s.data.lump_sd)
             # an analysis whose window may reach across the slip's start or a change (its choices then describe
             # neither side: a minor speed of the start's transient held oblique for seconds) is done again once
             # the window lies past it
@@ -351,13 +367,7 @@ class Tracker:
         u = _update_program()(rec, held.settings, held.state, False)
         held.state = u.state
         e = u.errors
-        mask = np.asarray(u.state.mask_xy)
-        loc = Located(u.state.i0, np.asarray(0), np.full(2, np.nan), u.speed0)
-        s = Summary(np.asarray(u.theta), *(np.asarray(x) for x in (e.cov, e.sd)), np.asarray(u.state.free),
-                    *(np.asarray(x) for x in (e.scales, e.pooled, e.chi2, e.redchi, e.n_data, e.cond, e.decrement,
-                                              e.step_sigma, e.converged, e.settled)),
-                    np.asarray(e.status), np.asarray(e.n_bins), loc, np.asarray(e.jackknife), None, None, None,
-                    _Mask(mask), np.asarray(e.spread), np.asarray(e.roughness), np.asarray(e.lumpy))
+        s = step_summary(u)
         moved = float(u.moved)
         res = result_from_summary(s, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
                                   model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
