@@ -24,6 +24,7 @@ class Status(str, enum.Enum):
     NO_SLIP = "no_slip"                # the probes hear no texture moving: a still contact, or none
     SLIP_START = "slip_start"          # a slip starts inside the window: its values mix the still part and the slip
     SLIP_STOP = "slip_stop"            # a slip ends inside the window
+    SLIP_CHANGE = "slip_change"        # the slip changes inside the window (the updates' misfit rose): no values
     # no values
     NO_BAND = "no_band"                # too few usable bins
     FAILED = "failed"                  # non-finite values, or an exception inside the fit

@@ -451,3 +451,12 @@ def test_records_of_lengthens_the_segments_of_slow_slips_as_record_of():
         for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(got)):
             np.testing.assert_allclose(np.asarray(b) * 1.0, np.asarray(a) * 1.0, rtol=1e-9,
                                        atol=1e-12 * np.max(np.abs(np.asarray(a) * 1.0), initial=0.0))
+
+
+@pytest.mark.parametrize("n, nw, k", [(2000, 4.0, 5), (1993, 4.0, 7), (64, 3.0, 5)])
+def test_dpss_tapers_are_scipys(n, nw, k):
+    """The package's tapers (scipy.linalg's tridiagonal eigenproblem) are scipy.signal's, signs included."""
+    from tactile_jax.spectral.estimate import dpss_tapers
+
+    np.testing.assert_allclose(dpss_tapers(n, nw, k), np.asarray(dpss(n, nw, Kmax=k, sym=True, norm=2)).reshape(k, n),
+                               atol=1e-12)

@@ -56,6 +56,22 @@ def test_a_still_contact_gives_no_slip_rows_and_no_speed(rng):
     assert tracker.rows == rows
 
 
+def test_a_moving_window_with_no_band_is_no_band_without_an_analysis(rng, monkeypatch):
+    """Texture heard by each probe alone (no coherent pair): the moving-texture test passes, the band holds no
+    usable bin, and the row says ``no_band`` with no analysis run."""
+    from tactile_jax.inference import run
+
+    def no_analysis(*args, **kwargs):
+        raise AssertionError("analysed a window with no band")
+
+    monkeypatch.setattr(run, "analyse_one", no_analysis)
+    tracker = Tracker(FS, window=1.0, hop=0.5, source="rub.h5")
+    rows = tracker.push(_texture_burst(2000, rng) + 1e-3 * rng.standard_normal((4, 2000)))
+    assert len(rows) == 3 and {r["status"] for r in rows} == {"no_band"}
+    assert all(r["update"] == "none" and r["vx"] is None and r["message"].startswith("only ") for r in rows)
+    assert all(r["n_bins"] < 6 for r in rows)
+
+
 @pytest.mark.parametrize("kwargs, words", [
     (dict(fs=0.0), "sample rate"),
     (dict(fs=FS, hop=3.0), "--hop"),
@@ -67,6 +83,35 @@ def test_bad_settings_are_one_line_errors(kwargs, words):
     with pytest.raises(TactileInputError, match=words) as err:
         Tracker(**kwargs)
     assert "\n" not in str(err.value)
+
+
+def _pairs(rng, n, speed, level=1.0):
+    """Two pairs of probes 0.66 mm apart in depth under a texture sliding at ``speed`` (m/s): the deep probe hears
+    each frequency f damped by exp(-2 pi f depth / speed) (paper Eq. 5); ``level`` scales the texture."""
+    kernel = np.hanning(16)
+    shallow = level * np.stack([np.convolve(w, kernel / kernel.sum(), mode="valid")[:n]
+                                for w in rng.standard_normal((2, n + 64))])
+    f = np.fft.rfftfreq(n, 1.0 / FS)
+    deep = np.fft.irfft(np.fft.rfft(shallow) * np.exp(-2 * np.pi * f * 0.66e-3 / speed), n)
+    out = np.empty((4, n))
+    out[0::2], out[1::2] = shallow, deep + 1e-7 * rng.standard_normal((2, n))
+    return out
+
+
+def test_change_point_places_a_change_of_slip_and_not_one_of_texture():
+    """A slip at 4 cm/s, then 1.5 cm/s from 1.7 s: placed within 0.1 s and sharp. The same slip throughout over a
+    texture whose relief triples at 1.5 s (another patch of the surface), heard by the deep probes over their
+    noise: the deep/shallow ratios do not change, and a split sharp enough to place a change is rare."""
+    from tactile_jax.track.tracker import CHANGE_SHARP, change_point
+
+    patches = []
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        at, sharp = change_point(np.concatenate([_pairs(rng, 1700, 0.04), _pairs(rng, 1300, 0.015)], 1), FS)
+        assert abs(at - 1.7) < 0.1 and sharp > CHANGE_SHARP
+        patches.append(change_point(np.concatenate([_pairs(rng, 1500, 0.04), _pairs(rng, 1500, 0.04, 3.0)], 1), FS)[1])
+    assert sum(p >= CHANGE_SHARP for p in patches) <= 1                  # a split of noise may pass by chance
+    assert change_point(np.zeros((4, 300)), FS)[1] < CHANGE_SHARP         # too short to split
 
 
 def test_a_steady_misfit_is_no_reason_to_analyse_again_and_a_rise_is():

@@ -30,7 +30,8 @@ def track(path, out, window, hop, record, sensor, velocity, contact_window, nper
 
     The first window in which the probes hear a moving texture gets the full analysis of ``fit``;
     later windows go on from the last estimate. A still contact is reported as ``no_slip`` (no
-    speed), a window in which a slip starts as ``slip_start``.
+    speed), a window in which a slip starts as ``slip_start``, one across a change of the slip as
+    ``slip_change``.
     """
     import numpy as np
 

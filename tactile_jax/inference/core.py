@@ -52,7 +52,7 @@ from ..model.spline import log_phi_at
 
 __all__ = ["STATUS", "Settings", "Record", "Start", "Summary", "Located", "Prepared", "core", "no_start", "start_at",
            "candidates", "scouting", "prepare",
-           "finish", "errors", "Errors", "fit_status", "summary_at", "N_KNOTS", "ITERATIONS"]
+           "finish", "errors", "Errors", "fit_status", "summary_at", "band_bins", "N_KNOTS", "ITERATIONS"]
 
 #: integer status codes of ``Summary.status``
 STATUS = ("ok", "no_band", "not_converged", "poor_fit", "failed")
@@ -324,6 +324,16 @@ def prepare(record: Record, settings: Settings, own_starts=True, both_windows: b
     # wanted only where no start is given
     a_h = a0 * HERTZ_PER_GAUSS
     return _build(True, v0, a_h, *jax.lax.cond(own_starts, hertz_starts, lambda: (v0, a_h)))
+
+
+def band_bins(record: Record, settings: Settings):
+    """The usable bins a fit of ``record`` would have (``Summary.n_bins``: both pairs' band in the fit's window,
+    as ``prepare`` places it) and the ``Located`` band, without the fit: a record with fewer than ``MIN_BINS``
+    is ``no_band`` whatever the fit."""
+    b = band_mod.select(band_mod.spectra(record.seg), record.depths, jnp.log(record.gains), min_snr=settings.min_snr,
+                        max_err=settings.max_err, fmin=settings.fmin, fmax=settings.fmax,
+                        leakage_db=settings.leakage_db, n_fit=N_FIT)
+    return jnp.sum(_window(b.band, b.i0)), Located(b.i0, b.n_leak, b.k0, b.speed0)
 
 
 def _build_prepared(hertz_window, v0, a0, v_s, a_s, *, b, spec, om, i0, band_w, depths, log_gains, known, settings,

@@ -19,8 +19,6 @@ from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import lineax as lx
-import optimistix as optx
 
 from .._numerics import tiny
 
@@ -130,6 +128,11 @@ def fit_statistics(theta, r_all, jac_all, free, *, bin_factor=1.0, scale_covar: 
 
 
 def _optimistix_solver(name: str, rtol, atol):
+    # optimistix and lineax (with equinox) are imported where a solver is made: 0.4-0.5 s that the compiled
+    # analysis, which does not use them, would otherwise add to every command's start
+    import lineax as lx
+    import optimistix as optx
+
     if name == DOGLEG:
         # for an LM stopped at max_steps in a curved valley: on one coverage scene LM gained < 1.7 chi2 in
         # 512 steps from its stopping point where Dogleg converged in 48
@@ -142,6 +145,8 @@ def _optimistix_solver(name: str, rtol, atol):
 
 
 def _solve_optimistix(fn, y0, args, max_steps, solver):
+    import optimistix as optx
+
     sol = optx.least_squares(fn, solver, y0, args, max_steps=max_steps, throw=False, options={"jac": "fwd"})
     return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 

@@ -347,10 +347,26 @@ def spectral_kernel(tapers: np.ndarray, nfft: int, half_width: float, step: floa
 
 @functools.lru_cache(maxsize=16)
 def dpss_tapers(n_samples: int, nw: float, n_tapers: int) -> np.ndarray:
-    from scipy.signal.windows import dpss
+    """The first ``n_tapers`` discrete prolate spheroidal sequences of length ``n_samples`` and time-half-bandwidth
+    ``nw``, unit energy, in Percival and Walden's sign convention (1993, p. 379): those of
+    ``scipy.signal.windows.dpss(..., sym=True, norm=2)``, by the same tridiagonal eigenproblem. Not scipy.signal
+    itself: importing it takes 2.2 s, which every ``track`` run paid before its first window (scipy.linalg: 0.2 s)."""
+    from scipy.linalg import eigh_tridiagonal
 
-    tapers = np.asarray(dpss(n_samples, nw, Kmax=n_tapers, sym=True, norm=2), dtype=np.float64)
-    tapers = tapers.reshape(n_tapers, n_samples)
+    m = int(n_samples)
+    t = np.arange(m, dtype=np.float64)
+    diag = ((m - 1 - 2 * t) / 2.0) ** 2 * np.cos(2 * np.pi * float(nw) / m)
+    off = t[1:] * (m - t[1:]) / 2.0
+    _, vec = eigh_tridiagonal(diag, off, select="i", select_range=(m - n_tapers, m - 1))
+    tapers = np.ascontiguousarray(vec[:, ::-1].T)
+    # symmetric tapers have a positive sum; antisymmetric ones start with a positive lobe
+    for k in range(0, n_tapers, 2):
+        if tapers[k].sum() < 0:
+            tapers[k] *= -1
+    thresh = max(1e-7, 1.0 / m)
+    for k in range(1, n_tapers, 2):
+        if tapers[k][tapers[k] ** 2 > thresh][0] < 0:
+            tapers[k] *= -1
     tapers.setflags(write=False)
     return tapers
 

@@ -6,11 +6,15 @@ program ``fit`` runs: window, texture and direction chosen by the data); each
 later window is one update from the last one's optimum (``track.step``) under
 those choices. After ``REACQUIRE_AFTER`` updates in a row that do not settle
 or whose misfit rose (a poor fit with a reduced chi-square over ``MISFIT_RISE``
-times the level of the updates since the acquisition), or a window with no
-band, the next window is analysed again: the choices held may no longer
-describe the slip (a steady misfit is not such a sign). An analysis whose
-window may reach across the slip's start or such a change is done again,
-once, when the window lies past it.
+times the level of the updates since the acquisition), the choices held may
+no longer describe the slip (a steady misfit is not such a sign): the slip
+changed inside the first such window. Where, ``change_point`` finds in the
+probes' spectra, again in each window as more of the new slip comes into view.
+The windows that still reach across that change are ``slip_change`` (no
+values: they hold two slips, which one fit would average), and the first that
+lies past it is analysed in full. After a window with no band the next
+is analysed. An analysis whose window may reach across the slip's start is
+done again, once, when the window lies past it.
 
 Before any fit, each window's segments are tested for a moving texture
 (``activity``): the shallow probes' low-frequency power against their
@@ -23,7 +27,8 @@ updates go on; none once they stopped: such a window gets no analysis).
 
 Rows hold ``t`` (the window's centre, s), ``window_s``, the columns ``fit``
 writes (vx, vx_err, vy, vy_err, a, a_err, status, message, ...) and
-``update`` ("analysis" or "step"), ``moved`` (the step in sigmas), ``compute_s``.
+``update`` ("analysis", "step", or "none" where nothing was fitted: a still window, a slip's start or end, a
+band too narrow to fit, whose ``no_band`` row needs no analysis), ``moved`` (the step in sigmas), ``compute_s``.
 """
 
 from __future__ import annotations
@@ -40,17 +45,18 @@ from ..errors import TactileInputError
 from ..inference import run
 from ..io.recording import SENSOR_DEFAULT, SENSOR_FROM_FILE
 from ..inference.analysis import DIRECTIONS, WINDOWS, summary_of
-from ..inference.core import POOR_FIT_REDCHI, Located, Summary
+from ..inference.core import MIN_BINS, POOR_FIT_REDCHI, Located, Summary, band_bins
 from ..inference.fit import result_of
 from ..inference.options import FitOptions, analysis_settings, choices_of, known_gains, settings_of
-from ..inference.result import FitResult, result_from_summary
+from ..inference.result import FitResult, no_band_result, result_from_summary
 from ..inference.select import model_name, texture_name
 from ..model.sensor import PAPER_SENSOR
 from ..spectral.segments import AR_ORDER, segments
 from ..status import Status
 from . import step as step_mod
 
-__all__ = ["Tracker", "track_recording", "activity", "Activity", "default_nperseg", "misfit_rose", "WINDOW_S", "HOP_S",
+__all__ = ["Tracker", "track_recording", "activity", "Activity", "change_point", "default_nperseg", "misfit_rose",
+           "WINDOW_S", "HOP_S",
            "MOVING_DB", "REACQUIRE_AFTER", "MISFIT_RISE", "MISFIT_MEMORY"]
 
 #: default window and hop, seconds
@@ -67,9 +73,21 @@ REACQUIRE_AFTER = 3
 #: misfits: its level must not excuse the poor updates after it)
 MISFIT_RISE = 2.0
 MISFIT_MEMORY = 20
-#: the fraction of a window that a change of the slip fills when the updates' misfit rises: the change is
-#: placed that far before the end of the first window of the run, and the window is analysed again once it
-#: lies past it
+#: the change-point search (``change_point``): segments of about this many seconds (a power of two samples),
+#: half-overlapping, each described by its pairs' deep/shallow log power ratios in ``CHANGE_BANDS`` log-spaced
+#: bands
+CHANGE_SEGMENT_S = 0.128
+CHANGE_BANDS = 6
+#: splits more than this many segments from the best one are its rivals (``change_point``'s sharpness); a
+#: change is placed where the best split's statistic is at least ``CHANGE_SHARP`` times theirs. On
+#: benchmarks/track.py's recordings, where the misfit first rose: 1.85-4.4 at the paths' changes of speed or
+#: direction; 1.1-1.6 where it rose inside a constant slip, and 1.2 at the press from 0.05 to 0.15 mm
+CHANGE_APART = 4
+CHANGE_SHARP = 1.75
+#: the search reaches this far (s) before the first window whose misfit rose, so that the old slip is in view
+CHANGE_LOOKBACK = 0.5
+#: where the change cannot be placed, the window is analysed at once and again once it lies past the point this
+#: fraction of a window before the end of the first window whose misfit rose
 CHANGE_SEEN = 0.5
 #: time-half-bandwidth of the window's DPSS tapers (5 tapers: the jackknife's groups): a 2 s
 #: window resolves 2 Hz, where Welch segments that leave six groups resolve 4 Hz (Hann's main lobe)
@@ -122,6 +140,43 @@ def activity(window, nperseg: int) -> Activity:
     return Activity(moving, excess, verdict)
 
 
+def change_point(samples, fs: float) -> tuple[float, float]:
+    """Where (s from the first sample) the slip changes most: the split of a run of samples (4, N) into a before
+    and an after whose segments' features differ most in mean, for their scatter (the single change point of a
+    shift in mean, each feature scaled by its pooled within-side variance). A segment's features are each pair's
+    deep/shallow log power ratio in ``CHANGE_BANDS`` log-spaced bands: the ratio at a frequency is R(omega / v)
+    (paper Eq. 5), which a change of speed, direction or contact moves, while the texture's own lumps (another
+    patch of the surface) cancel from it, except in bands where the deep probe hears its noise alone. (Keeping
+    only the bands the deep probe hears over its floor blunted the changes of speed, whose bands it hears on one
+    side only: a sharpness of 1.1 at the speed change of benchmarks/track.py.)
+    The split is sought with at least three segments each side. Returns where the change lies, midway between the
+    last segment before the split and the first after (a resolution of half a segment, ``CHANGE_SEGMENT_S``), and
+    how sharp the split is: its statistic over the largest of the splits more than ``CHANGE_APART`` segments from
+    it (near 1: nothing tells where a change lies)."""
+    x = np.asarray(samples, float)
+    n = max(16, 1 << (int(round(CHANGE_SEGMENT_S * fs)).bit_length() - 1))
+    step = n // 2
+    starts = np.arange(0, x.shape[-1] - n + 1, step)
+    if starts.size < 6:
+        return 0.5 * x.shape[-1] / fs, 1.0
+    seg = x[:, starts[:, None] + np.arange(n)[None, :]]                        # (4, S, n)
+    power = np.abs(np.fft.rfft((seg - seg.mean(-1, keepdims=True)) * np.hanning(n), axis=-1)) ** 2
+    edges = np.unique(np.round(np.geomspace(1, power.shape[-1] // 2, CHANGE_BANDS + 1)).astype(int))
+    level = np.stack([np.log(np.maximum(power[..., a:b].mean(-1), 1e-300)) for a, b in zip(edges[:-1], edges[1:])])
+    f = (level[:, 1::2] - level[:, 0::2]).reshape(-1, level.shape[-1]).T          # (S, 2 B)
+    n_seg = f.shape[0]
+    cum, cum2 = np.cumsum(f, 0), np.cumsum(f * f, 0)
+    k = np.arange(3, n_seg - 2)                                                  # segments before the split
+    mean_a, mean_b = cum[k - 1] / k[:, None], (cum[-1] - cum[k - 1]) / (n_seg - k)[:, None]
+    within = (cum2[-1] - k[:, None] * mean_a ** 2 - (n_seg - k)[:, None] * mean_b ** 2) / (n_seg - 2)
+    stat = (k * (n_seg - k) / n_seg) * np.sum((mean_a - mean_b) ** 2 / np.maximum(within, 1e-12), -1)
+    i = int(np.argmax(stat))
+    best = int(k[i])
+    far = np.abs(k - best) > CHANGE_APART
+    sharp = float(stat[i] / np.max(stat[far])) if far.any() else np.inf
+    return float((starts[best - 1] + n + starts[best]) / 2.0 / fs), sharp
+
+
 def misfit_rose(redchi: float, history) -> bool:
     """Whether a poor update's reduced chi-square ``redchi`` rose above the level of the updates held so far
     (``history``, their reduced chi-squares): over ``MISFIT_RISE`` times their median, taken between 1 and
@@ -155,6 +210,11 @@ def _update_program():
     # kept in the persistent cache with its traced form (``run._exported``): a new process then skips the
     # seconds of tracing the update and the state programs
     return run._exported(step_mod.update, "track_update", (step_mod.TrackState, step_mod.Update))
+
+
+@functools.cache
+def _band_program():
+    return run._exported(band_bins, "track_band", (Located,))
 
 
 @functools.cache
@@ -235,7 +295,11 @@ class Tracker:
         self._seen = 0                      # samples pushed
         self._next_end = self.n_window      # the next window ends at this sample
         self._held: _Held | None = None
-        self._edge: float | None = None     # a slip's start or change (s) that the next analysis may straddle
+        self._edge: float | None = None     # a slip's start (s) that the next analysis may straddle
+        self._change: tuple | None = None   # a change of the slip the updates found: (search from, at most by), s
+        self._located: float | None = None  # where ``change_point`` places it
+        # samples kept before the window: the change-point search reaches back a window and more
+        self.n_history = int(round((self.window_s + 2 * CHANGE_LOOKBACK) * fs))
         self._by_window: dict = {}
         self.rows: list[dict] = []
 
@@ -258,9 +322,10 @@ class Tracker:
             start = self._next_end - self.n_window                      # absolute sample index
             offset = start - (self._seen - self._buffer.shape[1])
             window = self._buffer[:, offset:offset + self.n_window]
-            out.append(self._row(window, self.t0 + (start + 0.5 * self.n_window) / self.fs))
+            history = self._buffer[:, max(0, offset - self.n_history):offset + self.n_window]
+            out.append(self._row(window, self.t0 + (start + 0.5 * self.n_window) / self.fs, history))
             self._next_end += self.n_hop
-        keep = self._seen - (self._next_end - self.n_window)
+        keep = self._seen - (self._next_end - self.n_window - self.n_history)
         if keep < self._buffer.shape[1]:
             self._buffer = self._buffer[:, self._buffer.shape[1] - max(keep, 0):]
         self.rows.extend(out)
@@ -275,14 +340,32 @@ class Tracker:
             seg = segments(window, self.fs, nperseg=self.nperseg, prewhiten=AR_ORDER, source=self.source)
         return run._record(seg, self.depths, self._gains, self.options.velocity)
 
-    def _row(self, window, t: float) -> dict:
+    def _row(self, window, t: float, history=None) -> dict:
         tic = time.perf_counter()
         rec = self._record(window)
         act = activity(window, self.nperseg)
         kind, moved = "none", None
         start_s = t - 0.5 * self.window_s
+        end_s = t + 0.5 * self.window_s
         if act.verdict != "moving":
-            self._edge = None
+            self._edge = self._change = self._located = None
+        if self._change is not None:
+            # the change is placed again in each window, on the samples from a little before the first window whose
+            # misfit rose to this window's end: the more of the new slip is in view, the better
+            first, by = self._change
+            hist = window if history is None else history
+            since = max(first, end_s - hist.shape[-1] / self.fs)
+            at, sharp = change_point(hist[:, hist.shape[-1] - int(round((end_s - since) * self.fs)):], self.fs)
+            if sharp >= CHANGE_SHARP:
+                self._located = min(since + at, by)
+            elif self._located is None:
+                # the deep/shallow ratios did not change where the misfit rose (a texture's patch, or a change of
+                # the slip too small to place): the window is analysed now, and again once it lies past the
+                # first window whose misfit rose, where the change would be had there been one
+                self._change = None
+                self._edge = by - CHANGE_SEEN * self.window_s
+            if self._located is not None and start_s >= self._located:
+                self._change = self._located = None     # the window lies past the change: it is analysed
         if self._held is not None and self._held.recheck_at is not None and start_s >= self._held.recheck_at:
             self._held = None               # the window now lies past the start or change the analysis straddled
         if act.verdict == "still":
@@ -304,8 +387,18 @@ class Tracker:
             res = FitResult(status=Status.SLIP_STOP, window=self._settings.window,
                             message="the slip ends inside this window: estimates follow once a window lies "
                                     "inside a slip")
+        elif self._held is None and self._change is not None:
+            # a window across the change holds two slips: an analysis of it would describe neither
+            res = FitResult(status=Status.SLIP_CHANGE, window=self._settings.window,
+                            message=f"the slip changes inside this window, near t = {self._located:.2f} s (the "
+                                    "updates' misfit rose): estimates follow once a window lies past the change")
         elif self._held is None:
-            res, kind = self._acquire(rec, start_s), "analysis"
+            n_bins, loc = _band_program()(rec, self._settings)
+            if int(n_bins) < MIN_BINS:      # the analysis would say no_band: it is not run
+                res = no_band_result(FitResult(window=self._settings.window), int(n_bins), np.asarray(loc.k0), rec.seg)
+                self._edge = None
+            else:
+                res, kind = self._acquire(rec, start_s), "analysis"
         else:
             res, kind, moved = self._step(rec, t)
         if act.verdict == "stop" and kind == "step":
@@ -390,9 +483,10 @@ class Tracker:
         if np.isfinite(redchi):
             held.redchi = (held.redchi + [redchi])[-MISFIT_MEMORY:]
         if held.bad >= REACQUIRE_AFTER or res.status in (Status.NO_BAND, Status.FAILED):
-            self._held = None               # the next window is analysed in full
-            # the misfit rises once the new slip fills about ``CHANGE_SEEN`` of the window
-            self._edge = held.bad_since - CHANGE_SEEN * self.window_s if held.bad >= REACQUIRE_AFTER else None
+            self._held = None               # a window past the change (or the next one) is analysed in full
+            # the change lies inside the first window whose misfit rose: after its start, before its end
+            self._change = ((held.bad_since - self.window_s - CHANGE_LOOKBACK, held.bad_since)
+                            if held.bad >= REACQUIRE_AFTER else None)
         return res, "step", moved
 
 

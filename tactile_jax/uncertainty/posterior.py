@@ -22,7 +22,6 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
-import emcee
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -105,6 +104,7 @@ class PosteriorResult(NamedTuple):
 
 
 def _quantity_tau(draws, thin) -> float:
+    import emcee
     """emcee's integrated autocorrelation time (steps) of one (n_walkers, n_draws) chain; NaN if not estimable."""
     try:
         # tol=0: the 50-tau rule is applied (and reported) by run_emcee itself
@@ -257,6 +257,9 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
     (as data): ``n_steps < 50 * max(tau)``, mean acceptance outside [0.15, 0.8], stuck walkers.
     Raises ValueError for invalid sizes or a fit whose own log-probability is -inf.
     """
+    # emcee (with scipy.stats) is imported where it samples: 0.8 s of every command's start otherwise
+    import emcee
+
     idx = _free_index(problem)
     n_free = idx.size
     if n_free == 0:
@@ -311,6 +314,8 @@ def _json_float(x):
 
 
 def _provenance_attrs() -> dict[str, Any]:
+    import emcee
+
     return {
         "created_by": "tactile_jax",
         "created_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),

@@ -9,6 +9,7 @@ from .figures import pyplot, save_figure
 __all__ = ["track_figure"]
 
 _COLOURS = {"ok": "tab:green", "no_slip": "0.6", "slip_start": "tab:blue", "slip_stop": "tab:purple",
+            "slip_change": "tab:cyan", "no_band": "0.3",
             "not_converged": "tab:orange", "poor_fit": "tab:red", "undetermined": "tab:olive"}
 
 
