@@ -684,9 +684,10 @@ class Errors(NamedTuple):
     lumpy: jax.Array
 
 
-def errors(record: Record, data: JointData, free, i0, theta, r, jac, hertz=None) -> Errors:
+def errors(record: Record, data: JointData, free, i0, theta, r, jac, hertz=None, gate=SPREAD_GATE) -> Errors:
     """Step 5 of the module and the status at the solution ``theta`` (fitted over ``free``), with its residuals
-    and their Jacobian there; i0: the window's first bin."""
+    and their Jacobian there; i0: the window's first bin; gate: in a fit that is not poor, the misfit's spread
+    sets an error where its plain sandwich exceeds the jackknife this many times."""
     cov, chi2, n_data, _, redchi, cond, decrement, step_sigma = statistics(theta, r, jac, free, data)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(chi2)
     settled = settled_physics(step_sigma, free)
@@ -702,7 +703,7 @@ def errors(record: Record, data: JointData, free, i0, theta, r, jac, hertz=None)
     poor = redchi > POOR_FIT_REDCHI
 
     def shared(corrected, plain, jackknife):      # where the spread sets the error
-        return jnp.where(poor, corrected > jackknife, plain > SPREAD_GATE * jackknife)
+        return jnp.where(poor, corrected > jackknife, plain > gate * jackknife)
 
     spread = free & shared(spread_scales, plain_scales, scales)
     scales = jnp.where(spread, spread_scales, scales)
