@@ -355,13 +355,14 @@ class Tracker:
             first, by = self._change
             hist = window if history is None else history
             since = max(first, end_s - hist.shape[-1] / self.fs)
-            at, sharp = change_point(hist[:, hist.shape[-1] - int(round((end_s - since) * self.fs)):], self.fs)
+            n_run = min(int(round((end_s - since) * self.fs)), hist.shape[-1])
+            at, sharp = change_point(hist[:, hist.shape[-1] - n_run:], self.fs)
             if sharp >= CHANGE_SHARP:
                 self._located = min(since + at, by)
             elif self._located is None:
                 # the deep/shallow ratios did not change where the misfit rose (a texture's patch, or a change of
                 # the slip too small to place): the window is analysed now, and again once it lies past the
-                # first window whose misfit rose, where the change would be had there been one
+                # middle of the first window whose misfit rose
                 self._change = None
                 self._edge = by - CHANGE_SEEN * self.window_s
             if self._located is not None and start_s >= self._located:
