@@ -114,6 +114,27 @@ def test_change_point_places_a_change_of_slip_and_not_one_of_texture():
     assert change_point(np.zeros((4, 300)), FS)[1] < CHANGE_SHARP         # too short to split
 
 
+def test_errors_widen_to_the_scatter_of_windows_that_share_no_sample():
+    """Rows every 0.1 s of 2 s windows: where windows 2 s apart differ by 3 of their errors the errors widen about
+    3x (vx's alone: vy and a do not move); where they agree within their errors, not at all; windows that overlap
+    are never compared."""
+    from tactile_jax.inference.result import FitResult
+    from tactile_jax.track.tracker import _Held
+
+    def row(vx):
+        res = FitResult()
+        for name, value in (("vx", vx), ("vy", 0.01), ("a", 2e-3)):
+            res.set(name, value=value, err=0.01 * value)
+        return res
+
+    for wander, expected in ((0.03, (2.0, 4.0)), (0.003, (1.0, 1.0))):
+        held = _Held(None, None, "hertz", "isotropic", "oblique")
+        ends = np.arange(2.0, 8.0, 0.1)
+        factors = np.array([held.widen(end, row(0.04 * (1 + wander * np.sin(np.pi * end / 2))), 2.0) for end in ends])
+        assert np.all(factors[:20] == 1.0)                             # nothing 2 s earlier yet
+        assert expected[0] <= factors[-1, 0] <= expected[1] and np.all(factors[-1, 1:] == 1.0)
+
+
 def test_a_steady_misfit_is_no_reason_to_analyse_again_and_a_rise_is():
     """A lumpy window's steady misfit (reduced chi-square 2-3 throughout) does not call for a new analysis;
     a misfit that rises well above the held level does, and an acquisition that misfits (one across a change)

@@ -25,6 +25,11 @@ values: the full analysis waits for a window that lies inside the slip), the
 reverse ``slip_stop`` (the update's values, which mix the two, while the
 updates go on; none once they stopped: such a window gets no analysis).
 
+An update's errors of vx, vy and a are widened where windows that share no
+sample (a window apart, since the analysis) differ by more than their errors
+allow (``_Held.widen``): each window hears another patch of the texture,
+which neither its tapers' jackknife nor its spread across frequency sees.
+
 Rows hold ``t`` (the window's centre, s), ``window_s``, the columns ``fit``
 writes (vx, vx_err, vy, vy_err, a, a_err, status, message, ...) and
 ``update`` ("analysis", "step", or "none" where nothing was fitted: a still window, a slip's start or end, a
@@ -48,7 +53,7 @@ from ..inference.analysis import DIRECTIONS, WINDOWS, summary_of
 from ..inference.core import MIN_BINS, POOR_FIT_REDCHI, Located, Summary, band_bins
 from ..inference.fit import result_of
 from ..inference.options import FitOptions, analysis_settings, choices_of, known_gains, settings_of
-from ..inference.result import FitResult, no_band_result, result_from_summary
+from ..inference.result import FitResult, no_band_result, result_from_summary, update_contact_depth
 from ..inference.select import model_name, texture_name
 from ..model.sensor import PAPER_SENSOR
 from ..spectral.segments import AR_ORDER, segments
@@ -94,6 +99,8 @@ CHANGE_SEEN = 0.5
 NW = 4.0
 #: fewest half-overlapping Welch segments in a window (the jackknife's groups; ``method="welch"``)
 MIN_SEGMENTS = 6
+#: the quantities whose errors ``_Held.widen`` calibrates on windows that share no sample
+WIDEN_QUANTITIES = ("vx", "vy", "a")
 
 
 def default_nperseg(n_window: int) -> int:
@@ -235,6 +242,31 @@ class _Held:
     bad: int = 0
     bad_since: float = math.nan     # the end (s) of the first window of the run of ``bad`` updates
     recheck_at: float | None = None     # a window that starts after this time (s) is analysed again, once
+    # (window end s, log values (3,), their sds (3,)) of vx, vy, a in each row since the acquisition, NaN where
+    # not fitted; and the squared differences, in their sds, of rows that share no sample (``widen``)
+    estimates: list = dataclasses.field(default_factory=list)
+    z2: list = dataclasses.field(default_factory=list)
+
+    def widen(self, end_s: float, res: FitResult, window_s: float) -> np.ndarray:
+        """Take ``res`` (a row ending at ``end_s``) into the history and return the factors (3,) its errors of vx,
+        vy and a (``WIDEN_QUANTITIES``) are to be widened by: each one's rms over the pairs of rows a window or
+        more apart (they share no sample: each window hears another patch of the texture, which its own errors
+        cannot see) of their differences in units of their errors, where it is above 1; else 1. A slip that
+        changes slowly widens them too."""
+        logs, sds = np.full(3, np.nan), np.full(3, np.nan)
+        for q, name in enumerate(WIDEN_QUANTITIES):
+            est = res[name]
+            if est.value is not None and est.err and est.value > 0:
+                logs[q], sds[q] = math.log(est.value), est.err / est.value
+        earlier = [e for e in self.estimates if e[0] <= end_s - window_s + 1e-9]
+        if earlier:
+            _, old_logs, old_sds = earlier[-1]
+            self.z2.append(np.square(logs - old_logs) / (np.square(sds) + np.square(old_sds)))
+        self.estimates.append((end_s, logs, sds))
+        z2 = np.asarray(self.z2).reshape(-1, 3)
+        seen = np.isfinite(z2).sum(0)
+        mean = np.where(seen > 0, np.nansum(z2, 0) / np.maximum(seen, 1), 1.0)
+        return np.maximum(1.0, np.sqrt(mean))
 
 
 class Tracker:
@@ -443,6 +475,7 @@ class Tracker:
             edge = self._edge if self._edge is not None and self._edge > start_s else None
             self._held = _Held(state, settings, window, texture_name(s.free), DIRECTIONS[int(a.direction)],
                                [float(s.redchi)], recheck_at=edge)
+            self._held.widen(start_s + self.window_s, res, self.window_s)
         self._edge = None
         return res
 
@@ -466,6 +499,16 @@ class Tracker:
         res = result_from_summary(s, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
                                   model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
         res.window, res.texture, res.direction = held.window, held.texture, held.direction
+        factors = held.widen(t + 0.5 * self.window_s, res, self.window_s)
+        widened = [f"{name} {f:.2f}x" for name, f in zip(WIDEN_QUANTITIES, factors) if f > 1.0 and res[name].err]
+        for name, f in zip(WIDEN_QUANTITIES, factors):
+            if res[name].err:
+                res.set(name, err=res[name].err * f)
+        if widened:
+            update_contact_depth(res)
+            res.message = "; ".join(m for m in (res.message, f"errors widened ({', '.join(widened)}): windows that share "
+                                                "no sample scatter that much more than their errors (each hears "
+                                                "another patch of the texture)") if m)
         if res.status == Status.NOT_CONVERGED:           # the program's status: the step did not settle
             notes = [m for m in res.message.split("; ") if m and not m.startswith("the solver did not converge")]
             res.message = "; ".join([f"the update moved a parameter by {moved:.1f} sigma: not settled (the slip is "
