@@ -23,7 +23,7 @@ from .forward import N_PHYS, PARAMS, param_names
 from .problem import FitProblem
 
 __all__ = ["Estimate", "FitResult", "TextureSection", "QUANTITIES", "RESULT_FIELDS", "result_from_summary",
-           "no_band_result",           "set_contact_depth", "update_contact_depth", "plain", "model_curves", "A_BOUNDS", "V_BOUNDS", "OWN_SCALE_PARAMS"]
+           "no_band_result", "set_contact_depth", "update_contact_depth", "plain", "model_curves", "A_BOUNDS", "V_BOUNDS", "OWN_SCALE_PARAMS"]
 
 #: the reported quantities (SI units: m/s, m/s, m, m, ratio, ratio; a line texture's speed along its
 #: lines' normal, m/s, and that normal's angle to the x axis, degrees in [0, 90])
@@ -245,13 +245,18 @@ def update_contact_depth(res: FitResult) -> None:
         res.set("contact_depth", lower=a.lower ** 2 / r)
 
 
+def _set_k0(res: FitResult, k0) -> None:
+    """``res``'s Eq. 4 wavenumbers k0x, k0y from the band's k0 (2,), None where not finite."""
+    for p, attr in ((0, "k0x"), (1, "k0y")):
+        k = float(k0[p])
+        setattr(res, attr, k if np.isfinite(k) else None)
+
+
 def no_band_result(res: FitResult, n_bins: int, k0, segments=None) -> FitResult:
     """``res`` as the row of a record whose band holds ``n_bins`` usable bins, too few to fit (``no_band``), with
     the band's Eq. 4 wavenumbers k0 (2,) and what the record's ``Segments`` hold instead."""
     res.status, res.n_bins = Status.NO_BAND, int(n_bins)
-    for p, attr in ((0, "k0x"), (1, "k0y")):
-        k = float(k0[p])
-        setattr(res, attr, k if np.isfinite(k) else None)
+    _set_k0(res, k0)
     res.message = (f"only {res.n_bins} usable bins (coherent, deep probe above noise, not leakage): too few to "
                    "fit; check the gains, the SNR or the band limits")
     if segments is not None:
@@ -274,9 +279,7 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
     res.cross_pairs = int(np.asarray(s.data.mask_xy).any(axis=-1).sum())
     if status == Status.NO_BAND:
         return no_band_result(res, res.n_bins, s.located.k0, segments)
-    for p, attr in ((0, "k0x"), (1, "k0y")):
-        k0 = float(s.located.k0[p])
-        setattr(res, attr, k0 if np.isfinite(k0) else None)
+    _set_k0(res, s.located.k0)
     if status == Status.FAILED:
         res.message = "the fit produced non-finite values"
         return res

@@ -38,6 +38,7 @@ band too narrow to fit, whose ``no_band`` row needs no analysis), ``moved`` (the
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import math
@@ -242,10 +243,12 @@ class _Held:
     bad: int = 0
     bad_since: float = math.nan     # the end (s) of the first window of the run of ``bad`` updates
     recheck_at: float | None = None     # a window that starts after this time (s) is analysed again, once
-    # (window end s, log values (3,), their sds (3,)) of vx, vy, a in each row since the acquisition, NaN where
-    # not fitted; and the squared differences, in their sds, of rows that share no sample (``widen``)
-    estimates: list = dataclasses.field(default_factory=list)
-    z2: list = dataclasses.field(default_factory=list)
+    # (window end s, log values (3,), their sds (3,)) of vx, vy, a in the rows of the last window and a hop, NaN
+    # where not fitted; and the sums and counts of the squared differences, in their sds, of the rows since the
+    # acquisition that share no sample (``widen``)
+    estimates: collections.deque = dataclasses.field(default_factory=collections.deque)
+    z2_sum: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    z2_n: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
 
     def widen(self, end_s: float, res: FitResult, window_s: float) -> np.ndarray:
         """Take ``res`` (a row ending at ``end_s``) into the history and return the factors (3,) its errors of vx,
@@ -258,14 +261,18 @@ class _Held:
             est = res[name]
             if est.value is not None and est.err and est.value > 0:
                 logs[q], sds[q] = math.log(est.value), est.err / est.value
-        earlier = [e for e in self.estimates if e[0] <= end_s - window_s + 1e-9]
-        if earlier:
-            _, old_logs, old_sds = earlier[-1]
-            self.z2.append(np.square(logs - old_logs) / (np.square(sds) + np.square(old_sds)))
+        # the latest row a window or more earlier: the rows before it are no longer needed (ends only increase)
+        apart = end_s - window_s + 1e-9
+        while len(self.estimates) > 1 and self.estimates[1][0] <= apart:
+            self.estimates.popleft()
+        if self.estimates and self.estimates[0][0] <= apart:
+            _, old_logs, old_sds = self.estimates[0]
+            z2 = np.square(logs - old_logs) / (np.square(sds) + np.square(old_sds))
+            seen = np.isfinite(z2)
+            self.z2_sum += np.where(seen, z2, 0.0)
+            self.z2_n += seen
         self.estimates.append((end_s, logs, sds))
-        z2 = np.asarray(self.z2).reshape(-1, 3)
-        seen = np.isfinite(z2).sum(0)
-        mean = np.where(seen > 0, np.nansum(z2, 0) / np.maximum(seen, 1), 1.0)
+        mean = np.where(self.z2_n > 0, self.z2_sum / np.maximum(self.z2_n, 1), 1.0)
         return np.maximum(1.0, np.sqrt(mean))
 
 

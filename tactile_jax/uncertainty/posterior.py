@@ -104,8 +104,9 @@ class PosteriorResult(NamedTuple):
 
 
 def _quantity_tau(draws, thin) -> float:
-    import emcee
     """emcee's integrated autocorrelation time (steps) of one (n_walkers, n_draws) chain; NaN if not estimable."""
+    import emcee
+
     try:
         # tol=0: the 50-tau rule is applied (and reported) by run_emcee itself
         tau = float(emcee.autocorr.integrated_time(np.asarray(draws, float).T[:, :, None], tol=0, quiet=True)[0])
