@@ -363,3 +363,71 @@ def test_a_known_velocity_along_x_gives_a_from_one_pairs_lines(a):
     assert res.status == "ok" and res.a_source == "fit"
     assert res.a == pytest.approx(a, rel=0.01)
     assert 0 < res.a_err < 0.05 * a
+
+
+def _hertz_lines(kx, v, a, err=3e-3):
+    """Exact ``Lines`` of modes (kx_j, 0) under the Hertz disk of radius a, heard by both pairs (the y pair
+    hears a mode along x through the disk's width: its ratio depends on kx)."""
+    from tactile_jax.model.hertz import hertz_hn
+
+    kx = np.asarray(kx, float)
+    n = kx.size
+    zero = np.full(n, 1.0)
+
+    def log_h(ks, kp, d):
+        return np.log(np.abs(np.asarray(hertz_hn(ks[None], kp[None], np.array([d]), a))[0]))
+
+    lr = np.stack([log_h(kx, zero, D2) - log_h(kx, zero, D1), log_h(zero, kx, D2) - log_h(zero, kx, D1)])
+    cross = log_h(zero, kx, D1) - log_h(kx, zero, D1)
+    w = kx * v[0]
+    z = np.zeros(2)
+    return Lines(w, np.full(n, 1e-3), np.arange(n), np.ones((2, n), bool), lr, np.full((2, n), err),
+                 np.ones((2, n)), np.full((2, n), 60.0), np.full((2, n), 40.0), cross, np.full(n, err),
+                 np.ones(n), 1.0, 30.0, 0, z.astype(int), np.full(2, np.nan), np.full(2, np.nan))
+
+
+def test_the_line_models_hertz_responses_are_the_tables():
+    """Under the Hertz disk a line's responses are the table's, not separable: log |Hn(k_s, k_p)| of each pair."""
+    import jax.numpy as jnp
+
+    from tactile_jax.inference.line_texture import NMAX, _responses_over
+    from tactile_jax.model.hertz import hertz_hn, hertz_table
+
+    rng = np.random.default_rng(3)
+    kx, ky = rng.uniform(50.0, 2e4, NMAX), rng.uniform(50.0, 2e4, NMAX)
+    a = 1.7e-3
+    with jax.enable_x64(True):
+        got = np.asarray(_responses_over(jnp.asarray(kx), jnp.asarray(ky), D1, D2, jnp.asarray([a]),
+                                         jnp.asarray(hertz_table().coef)))[0]
+        ks, kp = np.concatenate([kx, ky]), np.concatenate([ky, kx])      # the x pair's modes, then the y pair's
+        want = np.log(np.abs(np.asarray(hertz_hn(np.stack([ks, ks]), np.stack([kp, kp]), np.array([D1, D2]), a))))
+    np.testing.assert_allclose(got.reshape(2, -1), want, atol=1e-9)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("a", [1.34e-3, 2.2e-3])
+def test_the_hertz_disks_radius_from_a_lattices_lines_at_a_known_velocity(a):
+    """The paper's Fig. 8 under the Hertz disk: a lattice of pipes slid along x at a known speed (harmonics of
+    1.5 mm). The Gaussian window cannot explain the lines (the y pair's ratio of a mode along x is above 1);
+    the Hertz disk gives a, and the choice between the windows says so."""
+    v = (0.047, 0.0)
+    lines = _hertz_lines(2 * np.pi / 1.5e-3 * np.arange(1, 4), v, a)
+    res = fit_lines(lines, (D1, D2), velocity=v, window=None)
+    assert res.status == "ok" and res.window == "hertz" and res.a_source == "fit", res.message
+    assert res.a == pytest.approx(a, rel=0.01)
+    assert abs(res.a - a) < 3 * res.a_err
+    assert fit_lines(lines, (D1, D2), velocity=v).status == "poor_fit"       # the Gaussian window alone
+
+
+def test_windows_the_lines_cannot_tell_apart_are_averaged():
+    from tactile_jax.inference.line_texture import LineFit, _choose_window
+
+    g = LineFit("ok", "g", vx=0.03, vx_err=1e-4, vy=0.0, vy_err=1e-4, a=1.0e-3, a_err=1e-5, chi2=4.0, redchi=1.0,
+                window="gaussian")
+    h = g._replace(message="h", a=1.3e-3, chi2=3.0, window="hertz")
+    both = _choose_window(g, h)
+    w_h = 1.0 / (1.0 + math.exp(-0.5))
+    assert both.window == "hertz" and both.a == pytest.approx(w_h * 1.3e-3 + (1 - w_h) * 1.0e-3)
+    assert both.a_err > 0.3 * (1.3e-3 - 1.0e-3) and "averaged" in both.message
+    assert _choose_window(g, h._replace(chi2=20.0)).window == "gaussian"              # decisive
+    assert _choose_window(g, h._replace(status="poor_fit", chi2=1.0)).window == "gaussian"   # only one explains

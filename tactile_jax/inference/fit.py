@@ -193,7 +193,7 @@ def with_line_model(res: FitResult, signals, fs: float, depths, options: FitOpti
     try:
         lines = find_lines(np.asarray(signals, float), float(fs), source=source)
         fit = fit_lines(lines, depths, gain_ratio=known_gains(options), velocity=options.velocity,
-                        shallow_gain_ratio=1.0 if options.window in (None, "gaussian") else None)
+                        window=options.window)
     except Exception as err:  # noqa: BLE001 - the line model is a second opinion: never let it sink the fit
         res.warnings.append(f"line model not run: {type(err).__name__}: {err}")
         return res
@@ -219,7 +219,7 @@ def _finite_or_none(x):
 def result_from_lines(fit, options: FitOptions, *, curvature_radius=None, smooth: FitResult | None = None) -> FitResult:
     """A ``FitResult`` of the line model's ``LineFit``: speeds (or a grating's speed along its normal with
     the other component undetermined), a, the normal's angle; texture "grating" or "lines"."""
-    res = FitResult(model="lines", window="gaussian", texture="grating" if fit.texture == "grating" else "lines",
+    res = FitResult(model="lines", window=fit.window, texture="grating" if fit.texture == "grating" else "lines",
                     status=Status(fit.status), message=fit.message, converged=True, solver="optimistix",
                     redchi=_finite_or_none(fit.redchi), chi2=_finite_or_none(fit.chi2), n_bins=int(fit.n_used),
                     n_residuals=int(fit.n_used), n_params=0)

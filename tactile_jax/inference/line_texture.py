@@ -16,6 +16,14 @@ ratio (all known; default 1). Only |kx|, |ky| are observable, so
 
 (t_j is the product of the signs of kx_j ky_j and vx vy).
 
+Under the Hertz disk the responses are the table's, log |Hn(k_s, k_p; d, a)| (``model.hertz``), not separable:
+each pair's ratio of a line depends on both components. ``window=None`` fits both windows and keeps the one the
+lines prefer (``_choose_window``). The disk's solves start from a scan over a (``_Fitter._hertz_scan``) and each
+line's best wavevector on a grid (``_Fitter._hertz_starts``); the searches and readings outside the solves (the
+level scan, harmonics, combination lines) use the Gaussian window's curves at the radius of the same second
+moment. One mode per line is assumed: under the disk a wire net's crossings put several modes (k0, m k0) on one
+line that the deep probe hears through the disk's edge, and such lines are not explained.
+
 Identifiability (what the fit assumes and reports):
 
 - One ratio has two unknowns (|k_s|, a). A mode whose two components are both
@@ -85,6 +93,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.r_curve import log_g, log_r_exact
+from .core import HERTZ_PER_GAUSS
 from .lsq import least_squares
 
 __all__ = ["LineTable", "LineFit", "fit_lines", "NMAX", "A_RANGE", "RATIO_FLOOR", "CROSS_FLOOR",
@@ -114,6 +123,18 @@ PERPENDICULAR_SIN = math.sin(math.radians(1.0))
 #: relative error of a combination line's wavevector as predicted from the fitted modes (added in quadrature:
 #: such lines are 20-40 dB weaker than the modes and blend with their neighbours' leakage)
 COMBINATION_K_ERR = 0.01
+#: floor (natural log) added in quadrature to the ratios' and cross levels' errors under the Hertz disk, and under both
+#: windows where the lines choose between them: simulated lattices under the disk miss the table's responses by up
+#: to 0.027 in log at the modes' true wavevectors (the y pair's ratios near the zeros of the disk's response along
+#: the probe), against errors of 0.001-0.02
+WINDOW_FLOOR = 0.01
+#: Gauss-Newton decrement of chi-square below which a solve under the Hertz disk counts as converged (``_run``)
+HERTZ_DECREMENT = 0.1
+#: under the Hertz disk, a wavevector component the solve drives below this many radians per contact radius is held
+#: at 0 (``_run``): there the disk's response is within 1 % of its value at 0 (1 - kappa^2 / 8 across the probe)
+KAPPA_HELD = 0.25
+#: ... where that raises chi-square by at most this
+HELD_CHI2 = 1.0
 #: a line z-score beyond which the worst line may be dropped
 DROP_Z = 4.0
 #: harmonics considered for one family
@@ -134,6 +155,12 @@ _K_GRID = np.geomspace(20.0, 3e5, 4096)         # rad/m, for inverting the monot
 _NG = 5                                          # global parameters: log a, vx, vy, log kx0, log ky0
 _K_UNIT = 1e3                                    # k in rad/mm inside the fit
 _V_UNIT = 1e-2                                   # v in cm/s inside the fit
+_K_NONE = 1.0                                    # rad/m: a wavevector component held at 0 (its log is the parameter)
+_K_START_GRID = np.concatenate([[_K_NONE], np.geomspace(20.0, 2e5, 80)])   # rad/m: the Hertz disk's starts
+_K_SCAN_GRID = np.concatenate([[_K_NONE], np.geomspace(20.0, 2e5, 30)])    # rad/m: ... its scan over a
+_SCAN_FLOOR = 0.05                              # log units added to the lines' errors in that scan
+_N_SCAN_MINIMA = 5                                # ... whose best minima are searched finely
+_RADII_BLOCK = 64                                # radii evaluated at once in those scans
 
 
 class LineTable(NamedTuple):
@@ -179,7 +206,9 @@ class LineFit(NamedTuple):
     different speeds; alternatives: ((|vx|, |vy|, chi2), ...) of the choices within
     ``AMBIGUITY_CHI2`` of the best. speed_bounds: ((lo, hi), (lo, hi)) of |vx|, |vy| when a
     marginalised speed is undetermined. chi2, redchi, dof; n_lines (detected), n_used (in the speed
-    fit), n_dropped (outliers). lines: the ``LineTable``.
+    fit), n_dropped (outliers). lines: the ``LineTable``. window: the contact window of the fit ("gaussian" or
+    "hertz"); window_margin: chi-square of the Gaussian window's fit less the Hertz disk's, in units of the better
+    one's reduced chi-square (at least 1), where both were fitted (else NaN).
     """
 
     status: str
@@ -207,14 +236,46 @@ class LineFit(NamedTuple):
     n_used: int = 0
     n_dropped: int = 0
     lines: LineTable | None = None
+    window: str = "gaussian"
+    window_margin: float = float("nan")
 
 
 # --------------------------------------------------------------------------------------------------------
 # the compiled least squares
 
 
-def _residuals(theta, args):
-    """Weighted residuals (4 NMAX,): x ratio, y ratio, cross level, frequency of every slot (0 where masked)."""
+def _log_responses(kx, ky, d1, d2, a, coef):
+    """log |response| (depth, pair, line) (2, 2, NMAX) of each line's mode (kx, ky) at both depths: the x pair
+    hears it along kx, the y pair along ky. ``coef`` None: the Gaussian window, log G(|k_s|; d, a) - a^2 k_p^2 / 6;
+    else the Hertz disk's table (``model.hertz``), log |Hn(k_s, k_p; d, a)|, which is not separable: the x pair's
+    ratio depends on ky too."""
+    n = kx.shape[0]
+    if coef is None:
+        # one call of log G for every (component, depth): equal to ``log_r_exact`` to 1e-12 for the ratio (one
+        # special-function graph instead of four halves the compile time)
+        k4 = jnp.concatenate([kx, ky, kx, ky])
+        d4 = jnp.concatenate([jnp.full(2 * n, d1), jnp.full(2 * n, d2)])
+        lg = log_g(k4, d4, a).reshape(2, 2, n)
+        return lg - jnp.square(a) * jnp.square(jnp.stack([ky, kx])) / 6.0
+    from ..model.hertz import hertz_factors, table_of
+
+    ks = jnp.concatenate([kx, ky])
+    kp = jnp.concatenate([ky, kx])
+    log_env, mant = hertz_factors(jnp.stack([ks, ks]), jnp.stack([kp, kp]), jnp.stack([d1, d2]), a,
+                                  table=table_of(coef))
+    # |mant| is O(1) and vanishes only at the disk edge's zeros of Hn, where no line is heard
+    return (log_env + jnp.log(jnp.abs(mant) + 1e-30)).reshape(2, 2, n)
+
+
+@jax.jit
+def _responses_over(kx, ky, d1, d2, radii, coef):
+    """``_log_responses`` (R, 2, 2, N) of the Hertz disk at the modes (kx, ky) (N,) for each of ``radii`` (R,)."""
+    return jax.vmap(lambda a: _log_responses(kx, ky, d1, d2, a, coef))(radii)
+
+
+def _residuals(theta, args, coef=None):
+    """Weighted residuals (4 NMAX,): x ratio, y ratio, cross level, frequency of every slot (0 where masked);
+    ``coef``: the Hertz table's coefficients for the Hertz disk, None for the Gaussian window."""
     d1, d2 = args["d1"], args["d2"]
     a = 1e-3 * jnp.exp(theta[0])
     fam = args["family"] > 0
@@ -225,16 +286,12 @@ def _residuals(theta, args):
     kx = _K_UNIT * jnp.exp(lkx)
     ky = _K_UNIT * jnp.exp(lky)
     mx, my, mc, mw = args["mx"], args["my"], args["mc"], args["mw"]
-    # one call of log G for every (component, depth): log R = log G(d2) - log G(d1) (equal to
-    # ``log_r_exact`` to 1e-12 here; one special-function graph instead of four halves the compile time)
-    k4 = jnp.concatenate([kx, ky, kx, ky])
-    d4 = jnp.concatenate([jnp.full(2 * NMAX, d1), jnp.full(2 * NMAX, d2)])
-    lg = log_g(k4, d4, a).reshape(2, 2, NMAX)                      # (depth, component, line)
-    log_r = lg[1] - lg[0]
-    f = lg[0] + jnp.square(a) * jnp.square(jnp.stack([kx, ky])) / 6.0   # F = log G(d1) + a^2 k^2 / 6
+    lh = _log_responses(kx, ky, d1, d2, a, coef)                 # (depth, pair, line)
+    log_r = lh[1] - lh[0]
     rx = jnp.where(mx > 0, (log_r[0] + args["lgx"] - args["lrx"]) / args["srx"], 0.0)
     ry = jnp.where(my > 0, (log_r[1] + args["lgy"] - args["lry"]) / args["sry"], 0.0)
-    rc = jnp.where(mc > 0, (args["lrho"] + f[1] - f[0] - args["lc"]) / args["sc"], 0.0)
+    # the shallow probes' level y1 / x1
+    rc = jnp.where(mc > 0, (args["lrho"] + lh[0, 1] - lh[0, 0] - args["lc"]) / args["sc"], 0.0)
     vx, vy = _V_UNIT * theta[1], _V_UNIT * theta[2]
     k0 = _K_UNIT * jnp.sqrt(jnp.exp(2 * theta[3]) + jnp.exp(2 * theta[4]))
     w_model = jnp.where(fam, n * k0 * vx, jnp.abs(kx * vx + args["t"] * ky * vy))
@@ -242,16 +299,22 @@ def _residuals(theta, args):
     return jnp.concatenate([rx, ry, rc, rw])
 
 
+def _residuals_of(theta, data):
+    """``_residuals`` with data = (args, coef): one module-level function for ``least_squares``."""
+    return _residuals(theta, *data)
+
+
 @jax.jit
-def _solve_jit(theta0, args, free):
-    res = least_squares(_residuals, theta0, args, free, max_steps=200, scale_covar=False)
-    return res._replace(jac=None), _residuals(res.theta, args)
+def _solve_jit(theta0, args, free, coef):
+    res = least_squares(_residuals_of, theta0, (args, coef), free, max_steps=200, scale_covar=False)
+    return res._replace(jac=None), _residuals(res.theta, args, coef)
 
 
-def _solve(theta0, args, free):
-    """(LsqResult, residuals at the fit (4 NMAX,)) as numpy: one compiled program for every record."""
+def _solve(theta0, args, free, coef=None):
+    """(LsqResult, residuals at the fit (4 NMAX,)) as numpy: one compiled program for every record (a second
+    for the Hertz disk, ``coef`` its table's coefficients)."""
     res, r = _solve_jit(jnp.asarray(theta0, float), {k: jnp.asarray(v, float) for k, v in args.items()},
-                        jnp.asarray(free, bool))
+                        jnp.asarray(free, bool), coef)
     return jax.tree.map(np.asarray, res), np.asarray(r)
 
 
@@ -471,8 +534,9 @@ def _args(dat: _Data, slots, family, harm, t, mw_extra=None):
                 t=pad(t, 1.0))
 
 
-def _run(dat, slots, *, family, harm, t, a0, v0, kx0, ky0, free_a, free_v, free_kx, free_ky, mw=None):
-    """One Levenberg-Marquardt solve; kx0, ky0 (L,) rad/m starts (family: the fundamental's (2,))."""
+def _run(dat, slots, *, family, harm, t, a0, v0, kx0, ky0, free_a, free_v, free_kx, free_ky, mw=None, coef=None):
+    """One Levenberg-Marquardt solve; kx0, ky0 (L,) rad/m starts (family: the fundamental's (2,)); coef: the
+    Hertz table's coefficients (the Hertz disk) or None (the Gaussian window)."""
     n = len(slots)
     theta = np.zeros(_NG + 2 * NMAX)
     theta[0] = math.log(a0 / 1e-3)
@@ -490,7 +554,21 @@ def _run(dat, slots, *, family, harm, t, a0, v0, kx0, ky0, free_a, free_v, free_
         free[_NG:_NG + n] = free_kx[slots]
         free[_NG + NMAX:_NG + NMAX + n] = free_ky[slots]
     args = _args(dat, slots, family, harm, t, mw)
-    res, r = _solve(theta, args, free)
+    res, r = _solve(theta, args, free, coef)
+    if coef is not None and not bool(res.converged):
+        # the disk's response is flat in a wavevector component about 0, and a mode along an axis puts the optimum
+        # there, where log |k| cannot go: the solve drifts. Components it drove below ``KAPPA_HELD`` / a are held
+        # at 0 and the solve repeated; that fit is kept where it settles and fits as well
+        comp = np.zeros(theta.size, bool)
+        comp[3:5] = family
+        comp[_NG:] = not family
+        th = np.asarray(res.theta)
+        flat = free & comp & (_K_UNIT * np.exp(th) * 1e-3 * math.exp(th[0]) < KAPPA_HELD)
+        if flat.any():
+            held = np.where(flat, math.log(_K_NONE / _K_UNIT), th)
+            res2, r2 = _solve(held, args, free & ~flat, coef)
+            if bool(res2.converged) and float(res2.chi2) <= float(res.chi2) + HELD_CHI2:
+                res, r, free = res2, r2, free & ~flat
     r = r.reshape(4, NMAX)
     z = np.zeros(dat.w.size)
     z[slots] = np.abs(r[:, :n]).max(0)
@@ -498,7 +576,11 @@ def _run(dat, slots, *, family, harm, t, a0, v0, kx0, ky0, free_a, free_v, free_
     n_free = int(free.sum())
     dof = max(n_data - n_free, 0)
     cond = float(res.cond) if np.isfinite(res.cond) else float("inf")
-    return _Fit(np.asarray(res.theta), np.asarray(res.cov), float(res.chi2), dof, bool(res.converged),
+    # the Hertz disk's response is flat in a component near 0 (its log drifts towards -infinity): a solve whose
+    # chi-square can fall by less than ``HERTZ_DECREMENT`` more has reached its minimum for every purpose
+    converged = bool(res.converged) or (coef is not None and bool(np.isfinite(res.chi2))
+                                        and float(res.decrement) < HERTZ_DECREMENT)
+    return _Fit(np.asarray(res.theta), np.asarray(res.cov), float(res.chi2), dof, converged,
                 np.asarray(t, float), z, n_free, cond, n_data)
 
 
@@ -556,14 +638,17 @@ def _single_k(dat, a, a_sd, comp):
 
 
 def fit_lines(lines, depths, *, gain_ratio=1.0, shallow_gain_ratio=1.0, contact_radius=None, velocity=None,
-              a_range=A_RANGE, ratio_floor: float = RATIO_FLOOR, cross_floor: float = CROSS_FLOOR) -> LineFit:
+              a_range=A_RANGE, ratio_floor: float = RATIO_FLOOR, cross_floor: float = CROSS_FLOOR,
+              window: str | None = "gaussian") -> LineFit:
     """Speeds and contact radius of a line texture from its lines (``spectral.peaks.Lines``): see the module.
 
     depths: (d1, d2) probe depths, m. gain_ratio: known deep/shallow gain ratios (gx, gy) or one for both.
     shallow_gain_ratio: known y1/x1 shallow gain ratio rho (None: the cross-pair levels are not used).
     contact_radius: known a (m) or None. velocity: known (vx, vy) (m/s) or None. a_range: (lo, hi) plausible
     contact radii (m) for profiling and marginalising an undetermined a. ratio_floor, cross_floor: error
-    floors (natural log). Failures come back as data (``LineFit.status``); bad arguments raise ValueError.
+    floors (natural log). window: the contact window, "gaussian" or "hertz" (the Hertz table, ``model.hertz``),
+    or None to fit both and keep the one the lines prefer (``_choose_window``). Failures come back as data
+    (``LineFit.status``); bad arguments raise ValueError.
     """
     d1, d2 = (float(d) for d in depths)
     if not (0.0 < d1 < d2) or not math.isfinite(d2):
@@ -575,6 +660,8 @@ def fit_lines(lines, depths, *, gain_ratio=1.0, shallow_gain_ratio=1.0, contact_
         raise ValueError(f"shallow_gain_ratio must be positive or None, got {shallow_gain_ratio!r}")
     if contact_radius is not None and not (float(contact_radius) > 0):
         raise ValueError(f"contact_radius must be positive, got {contact_radius!r}")
+    if window not in (None, "gaussian", "hertz"):
+        raise ValueError(f"window must be 'gaussian', 'hertz' or None, got {window!r}")
     lo_a, hi_a = (float(v) for v in a_range)
     if not 0 < lo_a < hi_a:
         raise ValueError(f"a_range must be 0 < lo < hi, got {a_range!r}")
@@ -593,8 +680,66 @@ def fit_lines(lines, depths, *, gain_ratio=1.0, shallow_gain_ratio=1.0, contact_
     # float64 here whatever the caller chose: the frequencies carry relative errors near 1e-5, and in float32 the
     # Levenberg-Marquardt solves stall on three of the four sign choices of two modes, so that a net's other
     # choices go missing from its alternatives (the scope ends here; nothing global is switched)
+    if window != "gaussian":
+        # the Hertz disk's errors (its table's, and a real contact's departure from the disk) and, where both
+        # windows are compared, the same for the Gaussian window, so that their chi-squares compare
+        dat = dat._replace(srx=np.hypot(dat.srx, WINDOW_FLOOR), sry=np.hypot(dat.sry, WINDOW_FLOOR),
+                           sc=np.hypot(dat.sc, WINDOW_FLOOR))
     with jax.enable_x64(True):
-        return _plain(_Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a)).run())
+        fits = {}
+        for name in (("gaussian", "hertz") if window is None else (window,)):
+            coef = None
+            if name == "hertz":
+                from ..model.hertz import hertz_table
+
+                coef = jnp.asarray(hertz_table().coef)
+            fits[name] = _Fitter(lines, dat, contact_radius, velocity, (lo_a, hi_a), coef).run()._replace(window=name)
+    return _plain(fits[window] if window is not None else _choose_window(fits["gaussian"], fits["hertz"]))
+
+
+def _choose_window(g: LineFit, h: LineFit) -> LineFit:
+    """The fit of the contact window the lines prefer, by the joint analysis's rule (``analysis.WINDOW_DECISIVE``).
+
+    A fit that explains the lines (``ok``) wins over one that does not. Between two that do, the chi-square
+    margin in units of the better reduced chi-square decides where it reaches ``WINDOW_DECISIVE``; below it the
+    lines cannot tell the windows apart, the Hertz disk's fit is kept (a fingertip's contact is one) and a and
+    the speeds are averaged over both by their Akaike weights, their errors holding both readings."""
+    from .analysis import WINDOW_DECISIVE
+
+    def explains(f):
+        return f.status == "ok"
+
+    if explains(g) != explains(h):
+        return g if explains(g) else h
+    if not (math.isfinite(g.chi2) and math.isfinite(h.chi2)):
+        return h if math.isfinite(h.chi2) and not math.isfinite(g.chi2) else g
+    scale = max(1.0, min(g.redchi if math.isfinite(g.redchi) else 1.0, h.redchi if math.isfinite(h.redchi) else 1.0))
+    margin = (g.chi2 - h.chi2) / scale
+    if not explains(g):             # neither explains the lines: the closer
+        return (h if margin >= 0 else g)._replace(window_margin=margin)
+    if margin >= WINDOW_DECISIVE:
+        return h._replace(window_margin=margin)
+    if margin <= -WINDOW_DECISIVE:
+        return g._replace(window_margin=margin)
+    w_h = 1.0 / (1.0 + math.exp(-0.5 * margin))
+    out, notes = {}, []
+    for name in ("a", "vx", "vy"):
+        vh, vg = getattr(h, name), getattr(g, name)
+        eh, eg = getattr(h, name + "_err"), getattr(g, name + "_err")
+        if None in (vh, vg, eh, eg):
+            continue
+        mean = w_h * vh + (1.0 - w_h) * vg
+        var = w_h * (eh ** 2 + (vh - mean) ** 2) + (1.0 - w_h) * (eg ** 2 + (vg - mean) ** 2)
+        out[name], out[name + "_err"] = mean, math.sqrt(var)
+        if abs(vh - vg) > 1e-9 * max(abs(vh), abs(vg), 1e-300):
+            unit, f = ("mm", 1e3) if name == "a" else ("cm/s", 1e2)
+            notes.append(f"{name} {vh * f:.4g} (Hertz) or {vg * f:.4g} (Gaussian) {unit}, averaged "
+                         f"{mean * f:.4g} +/- {math.sqrt(var) * f:.2g} {unit}")
+    msg = h.message + (f"; the lines do not tell the contact windows apart (chi2 margin {margin:.2g}): "
+                       f"{'; '.join(notes)} (Akaike weights, Hertz {w_h:.2f})" if notes else "")
+    return h._replace(message=msg, window_margin=margin, **out)
+
+
 
 
 def _plain(res: LineFit) -> LineFit:
@@ -612,8 +757,14 @@ def _plain(res: LineFit) -> LineFit:
 class _Fitter:
     """The decision logic of ``fit_lines`` on one record's measurements."""
 
-    def __init__(self, lines, dat: _Data, a_known, v_known, a_range):
+    def __init__(self, lines, dat: _Data, a_known, v_known, a_range, coef=None):
         self.lines, self.dat = lines, dat
+        #: the Hertz table's coefficients (the Hertz disk) or None (the Gaussian window). The starts, the level
+        #: scan and the readings outside the fit invert the Gaussian window's separable curves; under the Hertz
+        #: disk they do so at the Gaussian radius of the same second moment (``ga`` times a): starting points
+        #: and screens, which the solves then refine under the disk
+        self.coef = coef
+        self.ga = 1.0 if coef is None else 1.0 / HERTZ_PER_GAUSS
         self.a_known, self.v_known = a_known, v_known
         self.a_grid = np.geomspace(a_range[0], a_range[1], 9) if a_known is None else np.asarray([a_known])
         self.n = dat.w.size
@@ -647,18 +798,26 @@ class _Fitter:
         dat = self.dat
         sel = np.zeros(self.n, bool)
         sel[slots] = True
-        kx, ky = _start_k(dat, a0, sel)
+        kx, ky = _start_k(dat, a0 * self.ga, sel)
         vk = self.v_known
         free_kx = sel & (self.inv_x | ((vk is not None) and vk[0] > 0))
         free_ky = sel & (self.inv_y | ((vk is not None) and vk[1] > 0))
-        # a component that no level measures starts where omega puts it (known v) or at 1/mm
-        kx = np.where(np.isnan(kx) & sel, 1e3, kx)
-        ky = np.where(np.isnan(ky) & sel, 1e3, ky)
+        # a component that no level measures starts where omega puts it (known v) or at 1/mm; one that stays
+        # unmeasured is held there (the Gaussian window's ratios do not depend on it) or, under the Hertz disk,
+        # whose x pair's ratio depends on ky, at 0: where that pair hears the mode best
+        kx = np.where(np.isnan(kx) & sel, np.where(free_kx | (self.coef is None), 1e3, _K_NONE), kx)
+        ky = np.where(np.isnan(ky) & sel, np.where(free_ky | (self.coef is None), 1e3, _K_NONE), ky)
+        if self.coef is not None:
+            kx, ky = self._hertz_starts(a0, kx, ky, sel, free_kx, free_ky)
         # omega = |kx vx + t ky vy| constrains a line where each component is fitted or drops out: a speed known
         # to be 0 takes its component out, so the line's frequency fixes the other, and its pair's ratio then
         # fixes a (the paper's Fig. 7: a from the known v)
         zero = (False, False) if vk is None else (vk[0] == 0, vk[1] == 0)
         mw = sel & (free_kx | zero[0]) & (free_ky | zero[1])
+        if self.coef is not None:
+            # a component whose best start is 0 is held there: the disk's response is flat in it about 0, so a
+            # free log |k| would drift towards -infinity and the solve never settle
+            free_kx, free_ky = free_kx & (kx > _K_NONE), free_ky & (ky > _K_NONE)
         if vk is not None:
             starts = [vk]
         elif v_start is not None:
@@ -672,7 +831,7 @@ class _Fitter:
             fit = None
             for _ in range(3):
                 fit = _run(dat, slots, family=False, harm=np.ones(self.n), t=t, a0=a0, v0=v0, kx0=kx, ky0=ky,
-                           free_a=free_a, free_v=vk is None, free_kx=free_kx, free_ky=free_ky, mw=mw)
+                           free_a=free_a, free_v=vk is None, free_kx=free_kx, free_ky=free_ky, mw=mw, coef=self.coef)
                 th = fit.theta
                 kx1 = np.full(self.n, np.nan)
                 ky1 = np.full(self.n, np.nan)
@@ -689,22 +848,131 @@ class _Fitter:
         fits.sort(key=lambda f: f.chi2)
         return fits
 
+    def _candidates(self, kx, ky, idx, free_kx, free_ky, grid):
+        """Each line's candidate (|kx|, |ky|) pairs (``_hertz_starts``): the grid for a free component, its
+        frequency's value for the other where the velocity is given, its start where it is held."""
+        dat, vk = self.dat, self.v_known
+        cands = []
+        for j in idx:
+            gx = grid if free_kx[j] else np.array([kx[j]])
+            gy = grid if free_ky[j] else np.array([ky[j]])
+            if vk is not None and free_kx[j] and vk[0] > 0:          # kx from the frequency, for each ky and sign
+                gy = np.concatenate([gy, gy])
+                gx = np.abs(dat.w[j] - np.repeat([1.0, -1.0], gy.size // 2) * gy * vk[1]) / vk[0]
+            elif vk is not None and free_ky[j] and vk[1] > 0:
+                gx = np.concatenate([gx, gx])
+                gy = np.abs(dat.w[j] - np.repeat([1.0, -1.0], gx.size // 2) * gx * vk[0]) / vk[1]
+            else:
+                gx, gy = (g.ravel() for g in np.meshgrid(gx, gy, indexing="ij"))
+            cands.append((np.maximum(gx, _K_NONE), np.maximum(gy, _K_NONE)))
+        return cands
+
+    def _line_costs(self, cands, idx, radii, floor=0.0, robust=False):
+        """(R, L): each line's least misfit (its ratios and cross level, squared z, or log(1 + z^2 / 9) where ``robust``;
+        ``floor`` added to their errors in quadrature) over its candidates, at each
+        of ``radii`` (R,) m, and the index of the best candidate."""
+        dat = self.dat
+        sizes = [c[0].size for c in cands]
+        # few shapes, so few compilations: modes padded to a power of 2, radii one at a time or in blocks
+        n_pad = max(1024, 1 << (sum(sizes) - 1).bit_length())
+        all_x, all_y = np.full(n_pad, 1e3), np.full(n_pad, 1e3)
+        all_x[:sum(sizes)] = np.concatenate([c[0] for c in cands])
+        all_y[:sum(sizes)] = np.concatenate([c[1] for c in cands])
+        radii = np.asarray(radii, float)
+        block = 1 if radii.size == 1 else _RADII_BLOCK
+        padded = np.concatenate([radii, np.full(-radii.size % block, radii[-1])])
+        lh = np.concatenate([np.asarray(_responses_over(jnp.asarray(all_x), jnp.asarray(all_y), dat.d1, dat.d2,
+                                                        jnp.asarray(padded[i:i + block]), self.coef))
+                             for i in range(0, padded.size, block)])[:radii.size]          # (R, 2, 2, N)
+        costs, best = np.zeros((len(radii), len(idx))), np.zeros((len(radii), len(idx)), int)
+        start = 0
+        for i, (size, j) in enumerate(zip(sizes, idx)):
+            h = lh[..., start:start + size]
+            start += size
+            cost = np.zeros((len(radii), size))
+            term = (lambda z: np.log1p(np.square(z) / 9.0)) if robust else np.square      # noqa: E731
+            if dat.hx[j]:
+                cost += term((h[:, 1, 0] - h[:, 0, 0] + dat.lgx - dat.lrx[j]) / np.hypot(dat.srx[j], floor))
+            if dat.hy[j]:
+                cost += term((h[:, 1, 1] - h[:, 0, 1] + dat.lgy - dat.lry[j]) / np.hypot(dat.sry[j], floor))
+            if dat.hc[j]:
+                cost += term((h[:, 0, 1] - h[:, 0, 0] + dat.lrho - dat.lc[j]) / np.hypot(dat.sc[j], floor))
+            best[:, i] = np.argmin(cost, 1)
+            costs[:, i] = cost[np.arange(len(radii)), best[:, i]]
+        return costs, best
+
+    def _hertz_starts(self, a, kx, ky, sel, free_kx, free_ky):
+        """Starting |kx|, |ky| of lines ``sel`` under the Hertz disk of radius ``a``: each line's best pair among
+        its candidates (``_candidates`` on ``_K_START_GRID``) by its own ratios and cross level. The Gaussian
+        window's inversions start the disk's solves in wrong basins: at a small |k_s| the disk's ratio depends
+        on k_p (a mode along x rings the y pair with a deep/shallow ratio above 1), which the Gaussian
+        window's cannot."""
+        idx = np.flatnonzero(sel)
+        cands = self._candidates(kx, ky, idx, free_kx, free_ky, _K_START_GRID)
+        _, best = self._line_costs(cands, idx, [a])
+        kx, ky = kx.copy(), ky.copy()
+        for (cx, cy), b, j in zip(cands, best[0], idx):
+            kx[j], ky[j] = cx[b], cy[b]
+        return kx, ky
+
+    def _hertz_scan(self):
+        """The Hertz disk's radius (m) that best explains the lines heard in both components (with the velocity
+        given, every line heard), each at its best wavevector (``_line_costs``), on a grid of ``a_range``;
+        None where no line can say. Its solves are multimodal in a: from the profile's radii (1.45 apart)
+        they end in wrong basins. The lines' errors (0.1-5 % in their ratios) make the misfit too sharp for a grid
+        of radii: the scan adds ``_SCAN_FLOOR`` to them, and a measurement near a zero of the disk's response
+        (its log swings with a) counts at most logarithmically, to find the basin the solve then refines."""
+        sel = self.two_d.copy()
+        idx = self._slots(sel)
+        if idx.size == 0:
+            return None
+        vk = self.v_known
+        free_kx = self.inv_x | ((vk is not None) and vk[0] > 0)
+        free_ky = self.inv_y | ((vk is not None) and vk[1] > 0)
+        nan = np.full(self.n, _K_NONE)
+        grid = _K_START_GRID if vk is not None else _K_SCAN_GRID
+        # the responses to a mode along a probe oscillate in a (the disk's J1): a fine grid where the velocity is
+        # given (each line's candidates are then its ky alone), a coarser one over the 2-D grid of wavevectors
+        radii = np.geomspace(self.a_grid[0], self.a_grid[-1], 400 if vk is not None else 49)
+        costs, _ = self._line_costs(self._candidates(nan, nan, idx, free_kx, free_ky, grid), idx, radii,
+                                    floor=_SCAN_FLOOR, robust=True)
+        total = costs.sum(1)
+        i = int(np.argmin(total))
+        if not np.isfinite(total[i]) or total.max() - total[i] < AMBIGUITY_CHI2:
+            return None
+        # then the lines' own errors on a fine grid (0.1 % apart) about each of the coarse scan's best minima: a
+        # line near a zero of the response pins a to 0.3 %, finer than the coarse grid, so the true basin need not
+        # be the coarse scan's lowest
+        pad = np.concatenate([[np.inf], total, [np.inf]])
+        minima = [int(j) for j in np.argsort(total, kind="stable") if pad[j + 1] <= min(pad[j], pad[j + 2])]
+        seeds = []
+        for j in minima:
+            if all(abs(math.log(radii[j] / radii[k])) > 0.05 for k in seeds):
+                seeds.append(j)
+            if len(seeds) == _N_SCAN_MINIMA:
+                break
+        fine = (radii[seeds][:, None] * np.geomspace(0.95, 1.0 / 0.95, 101)[None, :]).ravel()
+        costs, _ = self._line_costs(self._candidates(nan, nan, idx, free_kx, free_ky, grid), idx, fine)
+        return float(fine[int(np.argmin(costs.sum(1)))])
+
     # ---- the family model
     def _fit_family(self, slots, harm, a0, free_a):
         dat = self.dat
         sel = np.zeros(self.n, bool)
         sel[slots] = True
-        kx, ky = _start_k(dat, a0, sel)
-        fx = np.nanmedian(kx[sel] / harm[sel]) if np.isfinite(kx[sel]).any() else 1e3
-        fy = np.nanmedian(ky[sel] / harm[sel]) if np.isfinite(ky[sel]).any() else 1e3
+        kx, ky = _start_k(dat, a0 * self.ga, sel)
         has_x, has_y = bool(self.inv_x[sel].any()), bool(self.inv_y[sel].any())
+        unmeasured = 1e3 if self.coef is None else _K_NONE          # as in ``_fit_2d``
+        fx = np.nanmedian(kx[sel] / harm[sel]) if np.isfinite(kx[sel]).any() else unmeasured
+        fy = np.nanmedian(ky[sel] / harm[sel]) if np.isfinite(ky[sel]).any() else unmeasured
         both = has_x and has_y
         k0 = math.hypot(fx, fy)
         w0 = np.median(dat.w[sel] / harm[sel])
         v0 = (w0 / k0, 0.0)
         mw = sel if both else np.zeros(self.n, bool)
         return _run(dat, slots, family=True, harm=harm, t=np.ones(self.n), a0=a0, v0=v0, kx0=np.asarray([fx]),
-                    ky0=np.asarray([fy]), free_a=free_a, free_v=both, free_kx=has_x, free_ky=has_y, mw=mw)
+                    ky0=np.asarray([fy]), free_a=free_a, free_v=both, free_kx=has_x, free_ky=has_y, mw=mw,
+                    coef=self.coef)
 
     # ---- profile over a, then free
     def _profile(self, fitfn):
@@ -713,7 +981,7 @@ class _Fitter:
         if self.a_known is not None:
             fits = fitfn(float(self.a_known), False, True)
             return fits, [(float(self.a_known), fits[0])] if fits else []
-        a0 = self._level_scan()
+        a0 = self._level_scan() if self.coef is None else self._hertz_scan()
         if a0 is not None:
             # the levels fix a: start there; the profile only where the fit then leaves a undetermined
             fits = fitfn(a0, True, True)
@@ -738,7 +1006,7 @@ class _Fitter:
             return None
         grid = np.geomspace(0.2e-3, 20e-3, 41)
         cost = []
-        for a in grid:
+        for a in grid * self.ga:
             kx = invert_ratio(dat.lrx[full] - dat.lgx, a, dat.d1, dat.d2)
             ky = invert_ratio(dat.lry[full] - dat.lgy, a, dat.d1, dat.d2)
             z = (dat.lrho + _cross_f(ky, a, dat.d1, dat.d2) - _cross_f(kx, a, dat.d1, dat.d2) - dat.lc[full]) / dat.sc[full]
@@ -825,6 +1093,7 @@ class _Fitter:
 
     def _fill_single(self, kx, kxe, ky, kye, a, a_sd):
         """|k_s| of lines outside the fit from their own pair's ratio at the fitted a."""
+        a = None if a is None else a * self.ga
         sx, sxe = _single_k(self.dat, a, a_sd, 0)
         sy, sye = _single_k(self.dat, a, a_sd, 1)
         fill_x, fill_y = np.isnan(kx) & np.isfinite(sx), np.isnan(ky) & np.isfinite(sy)
@@ -959,7 +1228,7 @@ class _Fitter:
                 cands = [(1e-3 * math.exp(fit.theta[0]), lx, ly)]
             margin, u, pair, a_fit = -math.inf, -1, 0, float("nan")
             for r, fx, fy in cands:
-                m_ = self._minor_margin(r, slots, harm, fx, fy, others)
+                m_ = self._minor_margin(r * self.ga, slots, harm, fx, fy, others)
                 if m_[0] > margin:
                     (margin, u, pair), a_fit = m_, r
             if margin > MINOR_DB and p >= P_POOR:
@@ -1119,7 +1388,7 @@ class _Fitter:
         k1x, k1y = math.exp(lx), math.exp(ly)
         single = others & (dat.hx ^ dat.hy)
         tol = _omega_tol(dat.sw, dat.d_omega)
-        lr_tab, _ = _tables(a, dat.d1, dat.d2)
+        lr_tab, _ = _tables(a * self.ga, dat.d1, dat.d2)
         lk = np.log(_K_GRID)
         tilt = math.asin(PERPENDICULAR_SIN) * 2.0 / max(abs(math.sin(2.0 * math.atan2(k1x, k1y))), 1e-3)
         found, unchecked = [], []
@@ -1132,7 +1401,7 @@ class _Fitter:
             hx, hy, lrx, srx, lry, sry = (np.array(v) for v in (dat.hx, dat.hy, dat.lrx, dat.srx, dat.lry, dat.sry))
             q = 0 if dat.hx[u] else 1                # the pair that hears it; the right angle supplies the other
             lr, lg, s_meas = (dat.lrx[u], dat.lgx, dat.srx[u]) if q == 0 else (dat.lry[u], dat.lgy, dat.sry[u])
-            k_meas = float(invert_ratio(lr - lg, a, dat.d1, dat.d2))
+            k_meas = float(invert_ratio(lr - lg, a * self.ga, dat.d1, dat.d2))
             k_other = k_meas * (k1x / k1y if q == 0 else k1y / k1x)
             value = float(np.interp(math.log(k_other), lk, lr_tab))
             # its error: the 1 deg tilt and the measured component's own, through d log R / d log k
@@ -1252,7 +1521,7 @@ class _Fitter:
         ky = _K_UNIT * np.exp(th[_NG + NMAX:_NG + NMAX + n])
         kv = np.stack([kx, fit.t[slots] * ky], 1)                     # the model's (|kx|, t |ky|)
         kv *= np.where(kv @ v >= 0, 1.0, -1.0)[:, None]                 # k_i . v = +omega_i
-        lr_tab, f_tab = _tables(a, dat.d1, dat.d2)
+        lr_tab, f_tab = _tables(a * self.ga, dat.d1, dat.d2)
         lk = np.log(_K_GRID)
 
         def at(tab, k):
@@ -1302,7 +1571,7 @@ class _Fitter:
         lr, s, g = (dat.lrx, dat.srx, dat.lgx) if comp == 0 else (dat.lry, dat.sry, dat.lgy)
         sel = harm > 0
         grid = np.geomspace(self.a_grid[0], self.a_grid[-1], 161)
-        tables = np.asarray(_curves_over(jnp.asarray(grid), jnp.asarray(dat.d1), jnp.asarray(dat.d2)))[:, 0]
+        tables = np.asarray(_curves_over(jnp.asarray(grid * self.ga), jnp.asarray(dat.d1), jnp.asarray(dat.d2)))[:, 0]
         cost = np.empty(grid.size)
         for i, tab in enumerate(tables):
             lk = np.log(_invert_on(tab, lr[sel] - g) / harm[sel])
@@ -1359,7 +1628,7 @@ class _Fitter:
             lr, g = (dat.lrx, dat.lgx) if comp == 0 else (dat.lry, dat.lgy)
             j = int(np.flatnonzero(h)[0])
             radii = [a] if a is not None else list(self.a_grid)
-            k_s = min(float(invert_ratio(lr[j] - g, r, dat.d1, dat.d2)) / harm[j] for r in radii)
+            k_s = min(float(invert_ratio(lr[j] - g, r * self.ga, dat.d1, dat.d2)) / harm[j] for r in radii)
             texture, bounds = "grating", (0.0, w0 / k_s)
             msg += (f"; one family in the {'xy'[comp]} pair: the speed along its normal is at most omega0 / "
                     f"|k{'xy'[comp]}| = {w0 / k_s:.4g} m/s" + ("" if a is not None else " over a in the plausible range"))
