@@ -386,6 +386,7 @@ def _hertz_lines(kx, v, a, err=3e-3):
                  np.ones(n), 1.0, 30.0, 0, z.astype(int), np.full(2, np.nan), np.full(2, np.nan))
 
 
+@pytest.mark.slow
 def test_the_line_models_hertz_responses_are_the_tables():
     """Under the Hertz disk a line's responses are the table's, not separable: log |Hn(k_s, k_p)| of each pair."""
     import jax.numpy as jnp
