@@ -428,6 +428,11 @@ def _start_k(dat: _Data, a, sel):
     return np.where(sel, kx, np.nan), np.where(sel, ky, np.nan)
 
 
+def _robust(z):
+    """A misfit term robust to a blended or mismeasured line: log(1 + z^2 / 9), quadratic within 3 sigma."""
+    return np.log1p(np.square(z) / 9.0)
+
+
 def _omega_tol(sw, d_omega, floor_bins=HARMONIC_BINS):
     """How far (rad/s) a line may sit from a frequency it is matched to: 4 of its sigmas ``sw``, at least
     ``floor_bins`` bins of width ``d_omega``."""
@@ -740,8 +745,6 @@ def _choose_window(g: LineFit, h: LineFit) -> LineFit:
     return h._replace(message=msg, window_margin=margin, **out)
 
 
-
-
 def _plain(res: LineFit) -> LineFit:
     """numpy scalars as Python floats (tuples of them too), for printing and JSON."""
     def conv(v):
@@ -868,10 +871,11 @@ class _Fitter:
         return cands
 
     def _line_costs(self, cands, idx, radii, floor=0.0, robust=False):
-        """(R, L): each line's least misfit (its ratios and cross level, squared z, or log(1 + z^2 / 9) where ``robust``;
-        ``floor`` added to their errors in quadrature) over its candidates, at each
-        of ``radii`` (R,) m, and the index of the best candidate."""
+        """(R, L): each line's least misfit (its ratios and cross level: squared z, or ``_robust`` where ``robust``;
+        ``floor`` added to their errors in quadrature) over its candidates, at each of ``radii`` (R,) m, and the
+        index of the best candidate."""
         dat = self.dat
+        term = _robust if robust else np.square
         sizes = [c[0].size for c in cands]
         # few shapes, so few compilations: modes padded to a power of 2, radii one at a time or in blocks
         n_pad = max(1024, 1 << (sum(sizes) - 1).bit_length())
@@ -890,7 +894,6 @@ class _Fitter:
             h = lh[..., start:start + size]
             start += size
             cost = np.zeros((len(radii), size))
-            term = (lambda z: np.log1p(np.square(z) / 9.0)) if robust else np.square      # noqa: E731
             if dat.hx[j]:
                 cost += term((h[:, 1, 0] - h[:, 0, 0] + dat.lgx - dat.lrx[j]) / np.hypot(dat.srx[j], floor))
             if dat.hy[j]:
@@ -922,20 +925,19 @@ class _Fitter:
         they end in wrong basins. The lines' errors (0.1-5 % in their ratios) make the misfit too sharp for a grid
         of radii: the scan adds ``_SCAN_FLOOR`` to them, and a measurement near a zero of the disk's response
         (its log swings with a) counts at most logarithmically, to find the basin the solve then refines."""
-        sel = self.two_d.copy()
-        idx = self._slots(sel)
+        idx = self._slots(self.two_d)
         if idx.size == 0:
             return None
         vk = self.v_known
         free_kx = self.inv_x | ((vk is not None) and vk[0] > 0)
         free_ky = self.inv_y | ((vk is not None) and vk[1] > 0)
-        nan = np.full(self.n, _K_NONE)
         grid = _K_START_GRID if vk is not None else _K_SCAN_GRID
         # the responses to a mode along a probe oscillate in a (the disk's J1): a fine grid where the velocity is
         # given (each line's candidates are then its ky alone), a coarser one over the 2-D grid of wavevectors
         radii = np.geomspace(self.a_grid[0], self.a_grid[-1], 400 if vk is not None else 49)
-        costs, _ = self._line_costs(self._candidates(nan, nan, idx, free_kx, free_ky, grid), idx, radii,
-                                    floor=_SCAN_FLOOR, robust=True)
+        at_zero = np.full(self.n, _K_NONE)           # a component no level measures is held at 0
+        cands = self._candidates(at_zero, at_zero, idx, free_kx, free_ky, grid)
+        costs, _ = self._line_costs(cands, idx, radii, floor=_SCAN_FLOOR, robust=True)
         total = costs.sum(1)
         i = int(np.argmin(total))
         if not np.isfinite(total[i]) or total.max() - total[i] < AMBIGUITY_CHI2:
@@ -952,7 +954,7 @@ class _Fitter:
             if len(seeds) == _N_SCAN_MINIMA:
                 break
         fine = (radii[seeds][:, None] * np.geomspace(0.95, 1.0 / 0.95, 101)[None, :]).ravel()
-        costs, _ = self._line_costs(self._candidates(nan, nan, idx, free_kx, free_ky, grid), idx, fine)
+        costs, _ = self._line_costs(cands, idx, fine)
         return float(fine[int(np.argmin(costs.sum(1)))])
 
     # ---- the family model
@@ -1010,7 +1012,7 @@ class _Fitter:
             kx = invert_ratio(dat.lrx[full] - dat.lgx, a, dat.d1, dat.d2)
             ky = invert_ratio(dat.lry[full] - dat.lgy, a, dat.d1, dat.d2)
             z = (dat.lrho + _cross_f(ky, a, dat.d1, dat.d2) - _cross_f(kx, a, dat.d1, dat.d2) - dat.lc[full]) / dat.sc[full]
-            cost.append(float(np.sum(np.log1p(np.square(z) / 9.0))))          # robust to a blended line
+            cost.append(float(np.sum(_robust(z))))
         return float(grid[int(np.argmin(cost))])
 
     def run(self) -> LineFit:
