@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tactile_jax._optional import MissingExtra
+from tactile_jax.uncertainty import posterior
 from tactile_jax.inference.lsq import least_squares
 from tactile_jax.uncertainty.posterior import (
     load_posterior,
@@ -148,6 +149,35 @@ def test_stretch_widens_one_parameter_and_keeps_the_correlation(problem, result)
     assert abs(corr) > 0.3                 # the toy's m and c are correlated, so keeping it means something
     with pytest.raises(ValueError, match="stretch"):
         make_log_prob(problem._replace(stretch=np.array([0.0, 1.0, 1.0])))
+
+
+def test_a_float32_run_is_checked_against_float64(problem, short):
+    assert short.precision == "float32" and 0.0 <= short.lp_error <= posterior.PRECISION_TOL
+    kept = short.theta.reshape(-1, 2)[::50]
+    high = make_log_prob(problem)(kept)
+    assert np.allclose(short.log_prob.ravel()[::50], high, atol=1e-3)   # the toy's float32 lp: to 1e-3 of float64
+    with pytest.raises(ValueError, match="precision"):
+        run_emcee(problem, n_steps=10, precision="float16")
+
+
+def test_a_float32_run_that_strays_is_sampled_again_in_float64(problem, monkeypatch):
+    monkeypatch.setattr(posterior, "PRECISION_TOL", -1.0)
+    strayed = run_emcee(problem, n_steps=40, seed=5)
+    plain = run_emcee(problem, n_steps=40, seed=5, precision="float64")
+    assert strayed.precision == "float64" and np.isfinite(strayed.lp_error) and np.isnan(plain.lp_error)
+    assert np.array_equal(strayed.theta, plain.theta)
+
+
+def test_the_log_prob_runs_any_number_of_walkers_through_one_block_shape(problem):
+    lp_block, lp_one = make_log_prob(problem, block=4), make_log_prob(problem, block=1)
+    walkers = problem.theta[:2] + 0.01 * np.random.default_rng(0).standard_normal((7, 2))
+    lp_block(walkers[:4])
+    compiled = posterior._log_prob_batch._cache_size()
+    for n in (1, 3, 5, 7):
+        assert np.allclose(lp_block(walkers[:n]), lp_one(walkers[:n]), rtol=1e-12)
+    assert posterior._log_prob_batch._cache_size() == compiled + 1        # block 1's shape, and no other
+    with pytest.raises(ValueError, match="block"):
+        make_log_prob(problem, block=0)
 
 
 def test_too_few_walkers(problem):
@@ -302,7 +332,9 @@ def test_attach_mcmc_shows_progress_and_the_posterior_file(problem, tmp_path, ca
     else:
         assert "40/40" in err                             # emcee's tqdm bar, on a stderr that is no TTY
         post = fit.posterior
-        assert err.splitlines()[-1] == f"posterior: {path} (ESS {post.ess:.0f}, tau {post.max_tau:.1f} steps)"
+        assert post.precision == "float32"
+        assert err.splitlines()[-1] == (f"posterior: {path} (ESS {post.ess:.0f}, tau {post.max_tau:.1f} steps; "
+                                        f"float32 log-probability, sd {post.lp_error:.3f} from float64)")
 
 
 def test_diagnose_messages():

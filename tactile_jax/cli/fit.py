@@ -267,6 +267,8 @@ def _attach_mcmc(result, row, out_path, settings):
 
         known = math.isfinite(post.ess) and math.isfinite(post.max_tau)
         diag = f"ESS {post.ess:.0f}, tau {post.max_tau:.1f} steps" if known else "tau not estimable: run a longer chain"
+        if post.precision == "float32":
+            diag += f"; float32 log-probability, sd {post.lp_error:.3f} from float64"
         click.echo(f"posterior: {path} ({diag})", err=True)
 
 

@@ -34,6 +34,15 @@ __all__ = ["PosteriorResult", "make_log_prob", "run_emcee", "to_inference_data",
            "load_posterior", "read_attrs"]
 
 TAU_FACTOR = 50                   # the chain must be this many autocorrelation times long
+#: what the sampler's log-probability can run in. float32 takes about a third of float64's time on a CPU (XLA
+#: vectorises float32 exp and log, which the joint model is mostly made of; docs/posterior.md gives the figures).
+#: What it costs in accuracy is measured on every run, against float64 (``run_emcee``).
+PRECISIONS = ("float32", "float64")
+CHECK_DRAWS = 256
+#: the largest sd over the checked draws of (float64 - float32) log-probability for a float32 run. A
+#: target reweighted by exp(eps) moves a posterior mean by at most about sd(eps) posterior sds, here below
+#: the Monte Carlo error of a mean, sd / sqrt(ESS), for an ESS up to 400; beyond it the chain runs in float64
+PRECISION_TOL = 0.05
 ACCEPTANCE_RANGE = (0.15, 0.8)    # healthy mean acceptance fraction of the stretch move
 _SUMMARY_QUANTILES = {"median": 50.0, "q16": 16.0, "q84": 84.0, "q2.5": 2.5, "q97.5": 97.5}
 _CHAIN_NOTE = ("emcee walker; the walkers of one ensemble are not independent chains (each move uses the "
@@ -61,6 +70,10 @@ class PosteriorResult(NamedTuple):
     walker_acceptance: (n_walkers,) acceptance fraction of each walker over the whole run.
     fixed: name -> value of the physical quantities that depend on fixed parameters only
         (one value for every draw, e.g. a gain ratio held at 1), in the units of ``to_physical``.
+    precision: what the kept chain's log-probability was computed in ("float32" or "float64").
+    lp_error: sd of the float64 log-probability less the float32 one, over up to ``CHECK_DRAWS`` kept
+        draws of a float32 run, or over the draws of the Laplace approximation that chose float64
+        (NaN where float64 was asked for).
     """
 
     names: tuple[str, ...]
@@ -77,6 +90,8 @@ class PosteriorResult(NamedTuple):
     warnings: tuple[str, ...]
     walker_acceptance: np.ndarray
     fixed: dict[str, float]
+    precision: str = "float64"
+    lp_error: float = math.nan
 
     @property
     def max_tau(self) -> float:
@@ -143,7 +158,7 @@ def _free_index(problem: FitProblem) -> np.ndarray:
     return np.flatnonzero(free)
 
 
-def make_log_prob(problem: FitProblem) -> Callable:
+def make_log_prob(problem: FitProblem, block: int = 16) -> Callable:
     """Log-probability of an ensemble of free-parameter vectors for ``problem``.
 
     Returns ``log_prob(theta_free)``: (n_walkers, n_free) numpy or jax array of the
@@ -151,9 +166,15 @@ def make_log_prob(problem: FitProblem) -> Callable:
     float64 ``-0.5 * sum(r**2) / problem.scale`` (``r`` at ``theta + (t - theta) / stretch``
     when ``problem.stretch`` is given), or ``-inf`` outside
     ``[lower, upper]`` (inclusive; a flat prior in the internal parametrisation)
-    or where the residuals are not finite. One jit-compiled vmapped function,
-    shared between problems with the same residual function and shapes.
+    or where the residuals are not finite. One jit-compiled vmapped function of ``block``
+    walkers, shared between problems with the same residual function and shapes: any
+    number of walkers is evaluated in blocks of that size (the last one padded), so the
+    starting ball, the initial ensemble and each half-ensemble step of the stretch move
+    share one compilation (a compile of the joint model's log-probability costs more than
+    a few hundred of its evaluations).
     """
+    if block < 1:
+        raise ValueError(f"block must be >= 1, got {block}")
     idx = _free_index(problem)
     theta0 = jnp.asarray(problem.theta)
     dtype = theta0.dtype
@@ -168,13 +189,30 @@ def make_log_prob(problem: FitProblem) -> Callable:
     residuals, args = problem.residuals, problem.args
 
     def log_prob(theta_free):
-        tf = jnp.asarray(theta_free, dtype)
+        tf = np.asarray(theta_free, np.float64)
         squeeze = tf.ndim == 1
-        lp = _log_prob_batch(jnp.atleast_2d(tf), residuals, args, theta0, idx_j, lower, upper, scale, stretch)
-        lp = np.asarray(lp, np.float64)
+        tf = np.atleast_2d(tf)
+        n = tf.shape[0]
+        padded = np.concatenate([tf, np.broadcast_to(tf[:1], (-n % block, tf.shape[1]))])
+        lp = np.concatenate([np.asarray(_log_prob_batch(jnp.asarray(padded[i:i + block], dtype), residuals, args,
+                                                        theta0, idx_j, lower, upper, scale, stretch), np.float64)
+                             for i in range(0, padded.shape[0], block)])[:n]
         return lp[0] if squeeze else lp
 
     return log_prob
+
+
+def _in_precision(problem: FitProblem, precision: str) -> FitProblem:
+    """``problem`` with its arguments' floating arrays and theta in ``precision`` (complex ones to match)."""
+    real = jnp.dtype(precision)
+    cplx = jnp.result_type(real, jnp.complex64)
+
+    def cast(x):
+        if isinstance(x, (jax.Array, np.ndarray)) and jnp.issubdtype(x.dtype, jnp.inexact):
+            return jnp.asarray(x, cplx if jnp.issubdtype(x.dtype, jnp.complexfloating) else real)
+        return x
+
+    return problem._replace(args=jax.tree.map(cast, problem.args), theta=np.asarray(problem.theta, real))
 
 
 # ---------------------------------------------------------------- sampling
@@ -240,7 +278,7 @@ def _diagnose(n_walkers, n_steps, tau, acc, walker_acc, log_prob, n_free):
 
 
 def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, burn: int | None = None,
-              thin: int = 1, seed: int = 0, progress: bool = False) -> PosteriorResult:
+              thin: int = 1, seed: int = 0, progress: bool = False, precision: str = "float32") -> PosteriorResult:
     """Sample the posterior of ``problem``'s free parameters with emcee around its least-squares fit.
 
     n_walkers: ensemble size; must be at least ``2 * n_free`` (ValueError otherwise:
@@ -253,14 +291,16 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
 
     Physical quantities that do not vary over the draws (functions of fixed parameters
     alone) go to ``PosteriorResult.fixed``, not ``samples``.
+    precision: what the log-probability is sampled in (``PRECISIONS``). "float32" runs the residuals
+        in float32 (``problem.args`` cast) where their log-probability keeps within ``PRECISION_TOL``
+        of float64's (sd; ``PosteriorResult.lp_error``): at ``n_walkers`` draws of the Laplace
+        approximation before the run, and at ``CHECK_DRAWS`` kept draws after it; where it does not,
+        the chain is sampled (again) in float64 with the same seed.
     Walkers start in a Gaussian ball of 0.1 Laplace sd (``problem.cov``; ``1e-4 |theta| + 1e-6``
     where that sd is 0 or not finite) around ``problem.theta``, kept inside the bounds. Warnings
     (as data): ``n_steps < 50 * max(tau)``, mean acceptance outside [0.15, 0.8], stuck walkers.
     Raises ValueError for invalid sizes or a fit whose own log-probability is -inf.
     """
-    # emcee (with scipy.stats) is imported where it samples: 0.8 s of every command's start otherwise
-    import emcee
-
     idx = _free_index(problem)
     n_free = idx.size
     if n_free == 0:
@@ -273,8 +313,53 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
         raise ValueError(f"need n_steps >= 2 and 0 <= burn < n_steps (n_steps = {n_steps}, burn = {burn})")
     if thin < 1:
         raise ValueError(f"thin must be >= 1, got {thin}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    block = -(-n_walkers // 2)                            # the stretch move's half ensemble
+    high = make_log_prob(problem, block=block)
+    lp_error = math.nan
+    if precision == "float32":
+        low = make_log_prob(_in_precision(problem, "float32"), block=block)
+        # first at draws of the Laplace approximation, so that a model float32 cannot carry costs no run
+        lp_error = _lp_error(_laplace_draws(problem, idx, 2 * block, seed), None, low, high)
+        if lp_error <= PRECISION_TOL:
+            post = _sample(problem, low, idx, n_walkers, n_steps, burn, thin, seed, progress)
+            theta = post.theta.reshape(-1, idx.size)
+            pick = np.unique(np.linspace(0, theta.shape[0] - 1, min(CHECK_DRAWS, theta.shape[0])).astype(int))
+            lp_error = _lp_error(theta[pick], post.log_prob.ravel()[pick], low, high)
+            if lp_error <= PRECISION_TOL:
+                return post._replace(precision="float32", lp_error=lp_error)
+    post = _sample(problem, high, idx, n_walkers, n_steps, burn, thin, seed, progress)
+    return post._replace(precision="float64", lp_error=lp_error)
 
-    log_prob = make_log_prob(problem)
+
+def _laplace_draws(problem: FitProblem, idx, n, seed) -> np.ndarray:
+    """n draws of the free parameters from the fit's Laplace approximation, clipped to the bounds."""
+    theta = np.asarray(problem.theta, float)[idx]
+    cov = np.asarray(problem.cov, float)[np.ix_(idx, idx)]
+    cov = np.where(np.isfinite(cov), cov, 0.0)
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    z = np.random.default_rng(seed).standard_normal((n, idx.size))
+    draws = theta + (z * np.sqrt(np.clip(w, 0.0, None))) @ v.T
+    return np.clip(draws, np.asarray(problem.lower, float)[idx], np.asarray(problem.upper, float)[idx])
+
+
+def _lp_error(theta, low_lp, low, high) -> float:
+    """sd over the draws ``theta`` (n, n_free) of the float64 log-probability ``high`` less the float32 one
+    (``low_lp`` where the run computed it, else ``low``); inf where one is finite and the other not."""
+    low_lp = low(theta) if low_lp is None else low_lp
+    high_lp = high(theta)
+    if np.any(np.isfinite(low_lp) != np.isfinite(high_lp)):
+        return math.inf
+    eps = (high_lp - low_lp)[np.isfinite(low_lp)]
+    return float(np.std(eps)) if eps.size > 1 else 0.0
+
+
+def _sample(problem, log_prob, idx, n_walkers, n_steps, burn, thin, seed, progress) -> PosteriorResult:
+    # emcee (with scipy.stats) is imported where it samples: 0.8 s of every command's start otherwise
+    import emcee
+
+    n_free = idx.size
     rng = np.random.default_rng(seed)
     p0 = _initial_ball(problem, idx, n_walkers, rng, log_prob)
     emcee_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
@@ -341,6 +426,8 @@ def _run_attrs(result: PosteriorResult) -> dict[str, Any]:
         "n_steps": int(result.n_steps),
         "n_burn": int(result.n_burn),
         "thin": int(result.thin),
+        "precision": str(result.precision),
+        "lp_error": json.dumps(_json_float(result.lp_error)),
     }
 
 
