@@ -732,6 +732,11 @@ def _choose_window(g: LineFit, h: LineFit) -> LineFit:
         vh, vg = getattr(h, name), getattr(g, name)
         eh, eg = getattr(h, name + "_err"), getattr(g, name + "_err")
         if None in (vh, vg, eh, eg):
+            if name == "a" and (vh is None) != (vg is None):        # one window's reading, said, not averaged
+                notes.append(f"a {1e3 * vg:.4g} +/- {1e3 * (eg or 0.0):.2g} mm under the Gaussian window, none under "
+                             "the Hertz disk" if vh is None else
+                             f"a {1e3 * vh:.4g} +/- {1e3 * (eh or 0.0):.2g} mm under the Hertz disk, none under the "
+                             "Gaussian window")
             continue
         mean = w_h * vh + (1.0 - w_h) * vg
         var = w_h * (eh ** 2 + (vh - mean) ** 2) + (1.0 - w_h) * (eg ** 2 + (vg - mean) ** 2)
@@ -783,6 +788,9 @@ class _Fitter:
         self.check_pairs = None
         #: what an unchecked square-net reading gives (set by ``_multi_result``; '' where nothing)
         self.reading = ""
+        #: the Hertz disk's radii (m) in distinct basins that fit the lines within ``AMBIGUITY_CHI2`` of the best
+        #: (``_hertz_scan``): two or more and the lines do not determine a under the disk
+        self.hertz_basins = ()
 
     # ---- helpers
     def _slots(self, sel):
@@ -955,7 +963,28 @@ class _Fitter:
                 break
         fine = (radii[seeds][:, None] * np.geomspace(0.95, 1.0 / 0.95, 101)[None, :]).ravel()
         costs, _ = self._line_costs(cands, idx, fine)
-        return float(fine[int(np.argmin(costs.sum(1)))])
+        total = costs.sum(1)
+        # the disk's responses oscillate in a: where few lines are heard (one line's ratio, at a known slip) other
+        # basins fit as well, and the best one's curvature says nothing of them
+        per_seed = total.reshape(len(seeds), -1)
+        best = np.argmin(per_seed, axis=1)
+        low = per_seed[np.arange(len(seeds)), best]
+        near = np.flatnonzero(low <= total.min() + AMBIGUITY_CHI2)
+        found = sorted(zip(fine.reshape(len(seeds), -1)[near, best[near]], low[near]))
+        if len(found) > 1:
+            # neighbours are one basin unless the misfit rises between them (by more than 1, a sigma in a)
+            path = np.concatenate([np.geomspace(r0, r1, 34)[1:-1] for (r0, _), (r1, _) in zip(found, found[1:])])
+            rise, _ = self._line_costs(cands, idx, path)
+            rise = rise.sum(1).reshape(len(found) - 1, -1).max(1)
+            keep = [found[0]]
+            for (r, c), top in zip(found[1:], rise):
+                if top > max(c, keep[-1][1]) + 1.0:
+                    keep.append((r, c))
+                elif c < keep[-1][1]:
+                    keep[-1] = (r, c)
+            found = keep
+        self.hertz_basins = tuple(float(r) for r, _ in found)
+        return float(fine[int(np.argmin(total))])
 
     # ---- the family model
     def _fit_family(self, slots, harm, a0, free_a):
@@ -1016,6 +1045,14 @@ class _Fitter:
         return float(grid[int(np.argmin(cost))])
 
     def run(self) -> LineFit:
+        res = self._fit()
+        if len(self.hertz_basins) > 1:
+            radii = ", ".join(f"{1e3 * r:.3g}" for r in self.hertz_basins)
+            res = res._replace(message=f"{res.message}; under the Hertz disk the lines fit a = {radii} mm as well "
+                                       f"(chi2 within {AMBIGUITY_CHI2:g}): they do not determine a")
+        return res
+
+    def _fit(self) -> LineFit:
         dat = self.dat
         base = dict(n_lines=self.n)
         if self.v_known is None and not self.two_d.any():
@@ -1104,8 +1141,10 @@ class _Fitter:
         return kx, kxe, ky, kye
 
     def _a_ok(self, fit) -> bool:
-        """The fit with a free determines a: converged, well posed, sd(log a) <= A_DETERMINED."""
-        return fit.converged and fit.determined and 0 < self._a_sd(fit) <= A_DETERMINED
+        """The fit with a free determines a: converged, well posed, sd(log a) <= A_DETERMINED, and (under the Hertz
+        disk) no other basin of a fits the lines as well."""
+        return (fit.converged and fit.determined and 0 < self._a_sd(fit) <= A_DETERMINED
+                and len(self.hertz_basins) < 2)
 
     def _a_report(self, fit, prof):
         """(a, a_err, source, marginalise?)"""
