@@ -322,7 +322,8 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
         low = make_log_prob(_in_precision(problem, "float32"), block=block)
         # first at draws of the Laplace approximation, so that a model float32 cannot carry costs no run
         lp_error = _lp_error(_laplace_draws(problem, idx, 2 * block, seed), None, low, high)
-        if lp_error <= PRECISION_TOL:
+        at_fit = low(np.asarray(problem.theta, float)[idx][None]).item()
+        if lp_error <= PRECISION_TOL and at_fit > -np.inf:
             post = _sample(problem, low, idx, n_walkers, n_steps, burn, thin, seed, progress)
             theta = post.theta.reshape(-1, idx.size)
             pick = np.unique(np.linspace(0, theta.shape[0] - 1, min(CHECK_DRAWS, theta.shape[0])).astype(int))
