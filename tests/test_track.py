@@ -236,12 +236,15 @@ def test_tracking_a_slip_on_the_gaussian_program():
     inside = [r for r in rows if (lambda p: p is not None and p["moving"])(truth_at(rec.truth, r["t"] - 1.0,
                                                                                       r["t"] + 1.0))]
     assert len(inside) >= 8
-    # every window inside the slide has values, right to 1 %; many are `poor_fit` at 45 dB: each window's
-    # tapers hear the same few texture modes (a lumpy spectrum), which the smooth texture model misfits
+    # every window inside the slide has values, right to 1 %. At 45 dB each window's tapers hear the same few
+    # texture modes (a lumpy spectrum), which the smooth texture model misfits with no trend across frequency:
+    # such a step is ok with errors from that scatter, and says so
     assert all(r["status"] in ("ok", "poor_fit", "not_converged") for r in inside)
     assert any(r["status"] == "ok" for r in inside)
     for r in inside:
         assert abs(r["vx"] - 0.04) < 0.01 * 0.04 and abs(r["a"] - 1.5e-3) < 0.02 * 1.5e-3
+    lumpy = [r for r in inside if "lumpy texture: the spectra scatter" in r["message"]]
+    assert lumpy and all(r["status"] == "ok" and abs(r["vx"] - 0.04) < 3 * r["vx_err"] for r in lumpy)
     # one analysis acquires the slide (its window may reach into the crossfade); updates follow it
     assert {r["update"] for r in rows if r["vx"] is not None} == {"analysis", "step"}
     assert sum(r["update"] == "step" for r in inside) >= len(inside) - 1
