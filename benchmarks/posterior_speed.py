@@ -69,15 +69,11 @@ def _reweighted(problem, post):
     eps = make_log_prob(problem)(theta) - post.log_prob[:, ::4].ravel()
     w = np.exp(eps - eps.max())
     w /= w.sum()
-    idx = np.flatnonzero(np.asarray(problem.free, bool))
-    full = np.broadcast_to(np.asarray(problem.theta, float), (theta.shape[0], np.size(problem.theta))).copy()
-    full[:, idx] = theta
-    phys = problem.to_physical(full)
     out = {}
     for q in QUANTITIES:
         if q not in post.samples:
             continue
-        x = np.asarray(phys[q], float)
+        x = np.asarray(post.samples[q][:, ::4], float).ravel()
         sd = np.std(x)
         sd_w = np.sqrt(np.sum(w * np.square(x - np.sum(w * x))))
         out[q] = ((np.sum(w * x) - np.mean(x)) / sd, sd_w / sd)

@@ -408,7 +408,10 @@ def _pct(x):
 
 
 def _a_of(res) -> tuple[float, float]:
-    """A fit's contact radius and its error (m), NaN where it gives none."""
+    """A fit's contact radius and its error (m), NaN where it gives none or is not ok (a flagged fit measures
+    nothing)."""
+    if res.status != "ok":
+        return math.nan, math.nan
     a = math.nan if res.a is None else float(res.a)
     return a, (math.nan if res.a_err is None else float(res.a_err))
 
@@ -442,7 +445,7 @@ def fig7(out: Path, quick: bool) -> list[Row]:
             # the control is fitted with the paper's own window given; the Hertz contact as a user would, the
             # window left to the tool
             res = fit_recording(rec, options if window == "hertz" else dataclasses.replace(options, window="gaussian"))
-            a, a_err = _a_of(res) if res.status == "ok" else (math.nan, math.nan)   # a flagged fit measures nothing
+            a, a_err = _a_of(res)
             a_true = sc.a
             col = f"C{j}"
             pts, _ = line_points(rec, dataclasses.replace(options, fmax=None))
@@ -498,7 +501,6 @@ def fig8(out: Path, quick: bool) -> list[Row]:
     base = make_scene(recipe)
     if quick:
         base = dataclasses.replace(base, duration=min(base.duration, 8.0))
-    d1, d2 = _sensor_depths(base)
     R = float(base.sensor.curvature_radius)
     depths = np.asarray(sweep.get("contact_depths_quick" if quick else "contact_depths", [1e-4]), float)
     fmax = sweep.get("fmax_hz", {})
@@ -521,7 +523,7 @@ def fig8(out: Path, quick: bool) -> list[Row]:
                                          seed=base.seed + j)
                 opts = dataclasses.replace(options, fmax=fmax.get(obj, options.fmax))
                 res = fit_recording(tj.simulate(sc), opts)
-            a, a_err = _a_of(res) if res.status == "ok" else (math.nan, math.nan)   # a flagged fit measures nothing
+            a, a_err = _a_of(res)
             pts_a.append(a)
             pts_err.append(a_err)
             stats.append(str(res.status))

@@ -72,7 +72,7 @@ class PosteriorResult(NamedTuple):
         (one value for every draw, e.g. a gain ratio held at 1), in the units of ``to_physical``.
     precision: what the kept chain's log-probability was computed in ("float32" or "float64").
     lp_error: sd of the float64 log-probability less the float32 one, over up to ``CHECK_DRAWS`` kept
-        draws of a float32 run, or over the draws of the Laplace approximation that chose float64
+        draws of a float32 run, or over the fit and the Laplace draws that chose float64
         (NaN where float64 was asked for).
     """
 
@@ -167,8 +167,8 @@ def make_log_prob(problem: FitProblem, block: int = 16) -> Callable:
     float64 ``-0.5 * sum(r**2) / problem.scale`` (``r`` at ``theta + (t - theta) / stretch``
     when ``problem.stretch`` is given), or ``-inf`` outside
     ``[lower, upper]`` (inclusive; a flat prior in the internal parametrisation)
-    or where the residuals are not finite. One jit-compiled vmapped function of ``block``
-    walkers, shared between problems with the same residual function and shapes: any
+    or where the residuals are not finite. One jit-compiled function of ``block``
+    walkers (side by side in float32, one after another in float64), shared between problems with the same residual function and shapes: any
     number of walkers is evaluated in blocks of that size (the last one padded), so the
     starting ball, the initial ensemble and each half-ensemble step of the stretch move
     share one compilation (a compile of the joint model's log-probability costs more than
@@ -300,8 +300,8 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
     alone) go to ``PosteriorResult.fixed``, not ``samples``.
     precision: what the log-probability is sampled in (``PRECISIONS``). "float32" runs the residuals
         in float32 (``problem.args`` cast) where their log-probability keeps within ``PRECISION_TOL``
-        of float64's (sd; ``PosteriorResult.lp_error``): at ``n_walkers`` draws of the Laplace
-        approximation before the run, and at ``CHECK_DRAWS`` kept draws after it; where it does not,
+        of float64's (sd; ``PosteriorResult.lp_error``): at the fit and ``n_walkers`` draws of
+        the Laplace approximation before the run, and at ``CHECK_DRAWS`` kept draws after it; where it does not,
         the chain is sampled (again) in float64 with the same seed.
     Walkers start in a Gaussian ball of 0.1 Laplace sd (``problem.cov``; ``1e-4 |theta| + 1e-6``
     where that sd is 0 or not finite) around ``problem.theta``, kept inside the bounds. Warnings
@@ -327,10 +327,10 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
     lp_error = math.nan
     if precision == "float32":
         low = make_log_prob(_in_precision(problem, "float32"), block=block)
-        # first at draws of the Laplace approximation, so that a model float32 cannot carry costs no run
-        lp_error = _lp_error(_laplace_draws(problem, idx, 2 * block, seed), None, low, high)
-        at_fit = low(np.asarray(problem.theta, float)[idx][None]).item()
-        if lp_error <= PRECISION_TOL and at_fit > -np.inf:
+        # first at the fit and draws of the Laplace approximation, so that a model float32 cannot carry costs no run
+        checks = np.vstack([np.asarray(problem.theta, float)[idx][None], _laplace_draws(problem, idx, 2 * block, seed)])
+        lp_error = _lp_error(checks, None, low, high)
+        if lp_error <= PRECISION_TOL:
             post = _sample(problem, low, idx, n_walkers, n_steps, burn, thin, seed, progress)
             theta = post.theta.reshape(-1, idx.size)
             pick = np.unique(np.linspace(0, theta.shape[0] - 1, min(CHECK_DRAWS, theta.shape[0])).astype(int))
