@@ -67,6 +67,33 @@ def test_a_refit_keeps_the_stage_it_ran_under_either_window():
     assert int(an._window_fit(st, an.Choices(window=2), 2.0).index) == an.H1
 
 
+def test_a_minor_speed_is_held_below_the_rise_the_caller_asks_for():
+    """The slip-direction choice is data: holding the minor speed raises chi-square by 2.5 of its error scale,
+    which Akaike's 2 calls a fitted speed and a tracker window's 5 tapers (``direction_keep``: F(1, 4) at 95 %,
+    7.71) call noise."""
+    import types
+
+    from tactile_jax.inference.forward import INDEX
+    from tactile_jax.track.tracker import direction_keep
+
+    n, p = len(an.STAGES), len(INDEX)
+    theta = np.zeros((n, p))
+    theta[:, INDEX["log_vx"]], theta[:, INDEX["log_vy"]] = np.log(0.03), np.log(0.002)
+    active = np.zeros(n, bool)
+    active[[an.T2, an.DA]] = True
+    chi2 = np.full(n, np.inf)
+    chi2[an.T2], chi2[an.DA] = 100.0, 105.0
+    st = types.SimpleNamespace(theta=theta, free=np.ones((n, p), bool), chi2=chi2, status=np.zeros(n, int),
+                               active=active)
+    scales = np.full(p, 2.0)
+    assert direction_keep(5) == pytest.approx(7.7086, abs=1e-4) and direction_keep(10 ** 4) == pytest.approx(3.84,
+                                                                                                             abs=0.01)
+    kept, margin, _ = an._direction_fit(st, an.T2, an.Choices(), scales)
+    assert int(kept) == an.T2 and float(margin) == pytest.approx(0.5)
+    kept, margin, _ = an._direction_fit(st, an.T2, an.Choices(direction_keep=direction_keep(5)), scales)
+    assert int(kept) == an.DA and float(margin) == pytest.approx(direction_keep(5) - 2.5)
+
+
 @pytest.mark.slow
 def test_a_vmapped_chunk_on_the_cpu_equals_the_single_record_program():
     """The batched path (``jax.vmap`` over a chunk of 4 different records) on the CPU gives each record's

@@ -67,7 +67,7 @@ from .solve import levenberg_marquardt
 
 __all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
            "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
-           "AXIS_FLOOR", "A_NEGLIGIBLE", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
+           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
 
 STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN", "TL")
 G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN, TL = range(len(STAGES))
@@ -86,6 +86,9 @@ DETECTING = 2
 TEXTURE_AVERAGED = 10.0
 #: a minor speed below this fraction of the major one is tested against 0
 DIRECTION_TESTED = 0.3
+#: a minor speed is held at 0 where holding it raises chi-square by at most this many of its error scale
+#: (Akaike's criterion: one parameter is worth 2)
+DIRECTION_KEEP = 2.0
 #: a speed held at 0 is held at this fraction of the other (the parameter is log|v|): its effect on the
 #: spectra, quadratic in it, is 1e-6 of the major speed's
 AXIS_FLOOR = 1e-3
@@ -124,13 +127,17 @@ class Choices(NamedTuple):
     window, texture: 0 to choose per record, else 1 + the index into ``WINDOWS`` / ``TEXTURES``;
     direction: 0 to choose, else 1 + the index into ``DIRECTIONS``; test_window: test whether the data
     need the contact window (``WN``); refit: go on from the given ``Start`` with every choice held (the
-    window given by ``window``, the texture and direction by the start's free mask)."""
+    window given by ``window``, the texture and direction by the start's free mask); direction_keep: the
+    rise of chi-square, in units of the minor speed's error scale, up to which a minor speed is held at 0
+    (``DIRECTION_KEEP``: Akaike's criterion; a caller whose error scale has few degrees of freedom asks for
+    more: ``track.tracker``)."""
 
     window: int = 0
     texture: int = 0
     direction: int = 0
     test_window: bool = True
     refit: bool = False
+    direction_keep: float = DIRECTION_KEEP
 
 
 class Stages(NamedTuple):
@@ -385,14 +392,14 @@ def _direction_fit(st: Stages, t, choices: Choices, scales_t):
     Tested where both speeds are free and the minor one is below ``DIRECTION_TESTED`` of the major (or a
     direction is given): DA holds it at ``AXIS_FLOOR`` of the major, from ``t``'s optimum. Akaike's
     criterion in units of the minor speed's own error scale (its variance ratio ``scales_t``, the unit of
-    its profile intervals): the axis model is kept where holding the speed raises chi-square by at most 2
-    of that scale, i.e. where it is within 1.4 sigma of 0 and a fitted value would be noise. A given
-    direction is held whatever the data say. Returns the kept stage, the margin (the loser's AIC minus the
+    its profile intervals): the axis model is kept where holding the speed raises chi-square by at most
+    ``choices.direction_keep`` of that scale (2 by default, i.e. where it is within 1.4 sigma of 0 and a
+    fitted value would be noise). A given direction is held whatever the data say. Returns the kept stage, the margin (the loser's AIC minus the
     winner's; nan where not tested or given) and whether the direction was given."""
     minor, _ = _minor(st, t, choices)
     forced = jnp.asarray(choices.direction) >= 2
     scale = jnp.maximum(scales_t[_I_V][minor], 1e-12)
-    margin = 2.0 - (st.chi2[DA] - st.chi2[t]) / scale
+    margin = jnp.asarray(choices.direction_keep) - (st.chi2[DA] - st.chi2[t]) / scale
     ok = _compared(st, DA) & jnp.isfinite(st.chi2[DA])
     take = st.active[DA] & (forced | ok & (margin >= 0.0))
     return (jnp.where(take, DA, t), jnp.where(st.active[DA] & ~forced & ok, jnp.abs(margin), jnp.nan),

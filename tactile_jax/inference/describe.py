@@ -90,7 +90,7 @@ def notes_of(a: Analysis) -> tuple[list[str], list[str]]:
         if bool(a.direction_forced):
             notes.append(f"slip {direction} (given): {q} held at 0")
         elif np.isfinite(float(a.direction_margin)):
-            notes.append(f"slip {direction}: {q} held at 0 (AIC margin {float(a.direction_margin):.1f} over a fitted "
+            notes.append(f"slip {direction}: {q} held at 0 (margin {float(a.direction_margin):.1f} over a fitted "
                          f"{q}, in units of its error scale: the data do not need it)")
     if not bool(a.window_needed):
         warnings.append(f"holding a at {1e3 * A_NEGLIGIBLE:.0f} mm changes chi2 by {float(a.window_rise):+.2f}, below "
