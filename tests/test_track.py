@@ -117,9 +117,9 @@ def test_change_point_places_a_change_of_slip_and_not_one_of_texture():
 def test_errors_widen_to_the_scatter_of_windows_that_share_no_sample():
     """Rows every 0.1 s of 2 s windows: where windows 2 s apart differ by 3 of their errors the errors widen about
     3x (vx's alone: vy and a do not move); where they agree within their errors, not at all; windows that overlap
-    are never compared."""
+    are never compared, and before any two share no sample the errors are widened by the measured default."""
     from tactile_jax.inference.result import FitResult
-    from tactile_jax.track.tracker import _Held
+    from tactile_jax.track.tracker import UNCALIBRATED_WIDEN, _Held, _widened
 
     def row(vx):
         res = FitResult()
@@ -130,9 +130,16 @@ def test_errors_widen_to_the_scatter_of_windows_that_share_no_sample():
     for wander, expected in ((0.03, (2.0, 4.0)), (0.003, (1.0, 1.0))):
         held = _Held(None, None, "hertz", "isotropic", "oblique")
         ends = np.arange(2.0, 8.0, 0.1)
-        factors = np.array([held.widen(end, row(0.04 * (1 + wander * np.sin(np.pi * end / 2))), 2.0) for end in ends])
-        assert np.all(factors[:20] == 1.0)                             # nothing 2 s earlier yet
+        out = [held.widen(end, row(0.04 * (1 + wander * np.sin(np.pi * end / 2))), 2.0) for end in ends]
+        factors, measured = np.array([f for f, _ in out]), np.array([m for _, m in out])
+        # nothing 2 s earlier yet
+        assert not measured[:20].any() and np.all(factors[:20] == np.maximum(UNCALIBRATED_WIDEN, 1.0))
+        assert measured[20:].all()
         assert expected[0] <= factors[-1, 0] <= expected[1] and np.all(factors[-1, 1:] == 1.0)
+    res = row(0.04)
+    _widened(res, np.array([1.5, 1.0, 1.0]), np.array([False, True, True]))
+    assert res["vx"].err == pytest.approx(1.5 * 0.01 * 0.04) and res["vy"].err == pytest.approx(0.01 * 0.01)
+    assert "errors widened (vx 1.50x) until windows that share no sample can be compared" in res.message
 
 
 def test_a_steady_misfit_is_no_reason_to_analyse_again_and_a_rise_is():

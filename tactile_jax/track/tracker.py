@@ -29,6 +29,9 @@ An update's errors of vx, vy and a are widened where windows that share no
 sample (a window apart, since the analysis) differ by more than their errors
 allow (``_Held.widen``): each window hears another patch of the texture,
 which neither its tapers' jackknife nor its spread across frequency sees.
+Until two such windows exist, they are widened by ``UNCALIBRATED_WIDEN``.
+A window's analysis fits a minor speed only where the window excludes 0 at
+``DIRECTION_LEVEL``.
 
 Rows hold ``t`` (the window's centre, s), ``window_s``, the columns ``fit``
 writes (vx, vx_err, vy, vy_err, a, a_err, status, message, ...) and
@@ -63,7 +66,7 @@ from . import step as step_mod
 
 __all__ = ["Tracker", "track_recording", "activity", "Activity", "change_point", "default_nperseg", "misfit_rose",
            "WINDOW_S", "HOP_S",
-           "MOVING_DB", "REACQUIRE_AFTER", "DIRECTION_LEVEL", "direction_keep", "MISFIT_RISE", "MISFIT_MEMORY"]
+           "MOVING_DB", "REACQUIRE_AFTER", "DIRECTION_LEVEL", "UNCALIBRATED_WIDEN", "direction_keep", "MISFIT_RISE", "MISFIT_MEMORY"]
 
 #: default window and hop, seconds
 WINDOW_S = 2.0
@@ -111,6 +114,11 @@ MIN_SEGMENTS = 6
 DIRECTION_LEVEL = 0.95
 #: the quantities whose errors ``_Held.widen`` calibrates on windows that share no sample
 WIDEN_QUANTITIES = ("vx", "vy", "a")
+#: ... and the factors (vx, vy, a) they are widened by before any two rows since the analysis share no sample
+#: (the analysis's own row and the first window's worth of updates): the rms, in units of their errors, of such
+#: rows' deviations from the truth on benchmarks/track.py's 24 constant slips, unwidened: 1.50 over 500 speeds,
+#: 1.66 over 356 radii (the rows after them, widened by their own comparisons: 0.90 and 1.30)
+UNCALIBRATED_WIDEN = np.array([1.5, 1.5, 1.65])
 
 
 def default_nperseg(n_window: int) -> int:
@@ -268,12 +276,12 @@ class _Held:
     z2_sum: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     z2_n: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
 
-    def widen(self, end_s: float, res: FitResult, window_s: float) -> np.ndarray:
+    def widen(self, end_s: float, res: FitResult, window_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Take ``res`` (a row ending at ``end_s``) into the history and return the factors (3,) its errors of vx,
-        vy and a (``WIDEN_QUANTITIES``) are to be widened by: each one's rms over the pairs of rows a window or
-        more apart (they share no sample: each window hears another patch of the texture, which its own errors
-        cannot see) of their differences in units of their errors, where it is above 1; else 1. A slip that
-        changes slowly widens them too."""
+        vy and a (``WIDEN_QUANTITIES``) are to be widened by, and whether each was measured: each one's rms over
+        the pairs of rows a window or more apart (they share no sample: each window hears another patch of the
+        texture, which its own errors cannot see) of their differences in units of their errors, where it is
+        above 1; before any such pair, ``UNCALIBRATED_WIDEN``. A slip that changes slowly widens them too."""
         logs, sds = np.full(3, np.nan), np.full(3, np.nan)
         for q, name in enumerate(WIDEN_QUANTITIES):
             est = res[name]
@@ -290,8 +298,9 @@ class _Held:
             self.z2_sum += np.where(seen, z2, 0.0)
             self.z2_n += seen
         self.estimates.append((end_s, logs, sds))
-        mean = np.where(self.z2_n > 0, self.z2_sum / np.maximum(self.z2_n, 1), 1.0)
-        return np.maximum(1.0, np.sqrt(mean))
+        measured = self.z2_n > 0
+        mean = np.where(measured, self.z2_sum / np.maximum(self.z2_n, 1), np.square(UNCALIBRATED_WIDEN))
+        return np.maximum(1.0, np.sqrt(mean)), measured
 
 
 class Tracker:
@@ -501,7 +510,7 @@ class Tracker:
             edge = self._edge if self._edge is not None and self._edge > start_s else None
             self._held = _Held(state, settings, window, texture_name(s.free), DIRECTIONS[int(a.direction)],
                                [float(s.redchi)], recheck_at=edge)
-            self._held.widen(start_s + self.window_s, res, self.window_s)
+            _widened(res, *self._held.widen(start_s + self.window_s, res, self.window_s))
         self._edge = None
         return res
 
@@ -525,16 +534,7 @@ class Tracker:
         res = result_from_summary(s, velocity=self.options.velocity, curvature_radius=self.curvature_radius,
                                   model=model_name(s.free, self.options.velocity is not None), segments=rec.seg)
         res.window, res.texture, res.direction = held.window, held.texture, held.direction
-        factors = held.widen(t + 0.5 * self.window_s, res, self.window_s)
-        widened = [f"{name} {f:.2f}x" for name, f in zip(WIDEN_QUANTITIES, factors) if f > 1.0 and res[name].err]
-        for name, f in zip(WIDEN_QUANTITIES, factors):
-            if res[name].err:
-                res.set(name, err=res[name].err * f)
-        if widened:
-            update_contact_depth(res)
-            res.message = "; ".join(m for m in (res.message, f"errors widened ({', '.join(widened)}): windows that share "
-                                                "no sample scatter that much more than their errors (each hears "
-                                                "another patch of the texture)") if m)
+        _widened(res, *held.widen(t + 0.5 * self.window_s, res, self.window_s))
         poor = res.status == Status.POOR_FIT
         if poor and bool(s.lumpy):
             # a steady misfit with no trend across frequency: a 2 s window hears few texture modes, every taper the
@@ -568,6 +568,26 @@ class Tracker:
             self._change = ((held.bad_since - self.window_s - CHANGE_LOOKBACK, held.bad_since)
                             if held.bad >= REACQUIRE_AFTER else None)
         return res, "step", moved
+
+
+def _widened(res: FitResult, factors, measured) -> None:
+    """Widen ``res``'s errors of vx, vy and a by ``factors`` (``_Held.widen``); its message says by how much, and
+    why."""
+    said = {True: [], False: []}
+    for name, f, m in zip(WIDEN_QUANTITIES, factors, measured):
+        if f > 1.0 and res[name].err:
+            res.set(name, err=res[name].err * f)
+            said[bool(m)].append(f"{name} {f:.2f}x")
+    if said[True] or said[False]:
+        update_contact_depth(res)
+    notes = [res.message]
+    if said[True]:
+        notes.append(f"errors widened ({', '.join(said[True])}): windows that share no sample scatter that much more "
+                     "than their errors (each hears another patch of the texture)")
+    if said[False]:
+        notes.append(f"errors widened ({', '.join(said[False])}) until windows that share no sample can be compared: "
+                     "each window hears another patch of the texture, which its own errors do not see")
+    res.message = "; ".join(m for m in notes if m)
 
 
 def track_recording(rec, *, window: float = WINDOW_S, hop: float = HOP_S, options: FitOptions = FitOptions(),
