@@ -294,9 +294,31 @@ def test_analytic_textures_zero_mean_and_rotation():
     assert abs(WireNet().field(xx, yy).mean()) < 1e-5
     # texture_field rotates slip-frame coordinates into the object frame
     g = Grating(pitch=1e-3, angle=0.7)
-    xi, eta = np.linspace(0, 2e-3, 5), np.linspace(-1e-3, 1e-3, 3)
+    xi, eta = np.linspace(0, 2e-3, 41), np.linspace(-1e-3, 1e-3, 21)
     u = texture_field(g, xi, eta, slip_angle=0.7)
-    np.testing.assert_allclose(u, np.broadcast_to(np.cos(g.wavenumber * xi), (3, 5)), atol=1e-12)
+    np.testing.assert_allclose(u, np.broadcast_to(np.cos(g.wavenumber * xi), (21, 41)), atol=1e-12)
+
+
+def test_a_periodic_texture_is_band_limited_to_its_grid():
+    """On a grid, a grating or net keeps its harmonics up to the grid's Nyquist wavenumber and no others: on a
+    fine grid it is the pointwise field (to the Gibbs ripple at a net's kinks); on the scene's grid no harmonic
+    folds onto a wavenumber the probes hear, so a net slid along x rings at its own harmonics only."""
+    from tactile_jax.simulation.texture import _lattice_modes
+    from tactile_jax.spectral.peaks import find_lines
+
+    xi, eta = np.arange(400) * 5e-6, np.arange(300) * 5e-6
+    c, s = math.cos(0.7), math.sin(0.7)
+    x, y = xi[None, :] * c - eta[:, None] * s, xi[None, :] * s + eta[:, None] * c
+    for tex, tol in ((Grating(profile="pipes", angle=0.4), 1e-4), (WireNet(angle=0.3, shear=0.2), 0.04)):
+        assert np.abs(texture_field(tex, xi, eta, 0.7) - tex.field(x, y)).max() < tol * np.abs(tex.field(x, y)).max()
+    k = 2 * np.pi / 0.5e-3
+    kvec, amp, _ = _lattice_modes(k * np.array([1.0, 0.0]), k * np.array([0.0, 1.0]),
+                                  lambda u1, u2: np.maximum(np.cos(2 * np.pi * u1), np.cos(2 * np.pi * u2)), 3.5 * k)
+    assert np.hypot(*kvec.T).max() <= 3.5 * k and amp.size > 4
+    rec = simulate(Scene(texture=WireNet(), velocity=(0.047, 0.0), contact_radius=0.85e-3, duration=4.0,
+                         snr_db=45.0, seed=0))
+    f = find_lines(np.asarray(rec.signals, float), rec.fs).omega / (2 * np.pi)
+    assert f.size >= 1 and np.allclose(f / 94.0, np.round(f / 94.0), atol=0.02)
 
 
 # ---------------------------------------------------------------- bad settings
