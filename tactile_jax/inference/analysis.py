@@ -67,7 +67,8 @@ from .solve import levenberg_marquardt
 
 __all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
            "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
-           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
+           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR",
+           "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
 
 STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN", "TL")
 G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN, TL = range(len(STAGES))
@@ -394,8 +395,9 @@ def _direction_fit(st: Stages, t, choices: Choices, scales_t):
     criterion in units of the minor speed's own error scale (its variance ratio ``scales_t``, the unit of
     its profile intervals): the axis model is kept where holding the speed raises chi-square by at most
     ``choices.direction_keep`` of that scale (2 by default, i.e. where it is within 1.4 sigma of 0 and a
-    fitted value would be noise). A given direction is held whatever the data say. Returns the kept stage, the margin (the loser's AIC minus the
-    winner's; nan where not tested or given) and whether the direction was given."""
+    fitted value would be noise). A given direction is held whatever the data say. Returns the kept stage,
+    the margin (the loser's AIC minus the winner's; nan where not tested or given) and whether the direction
+    was given."""
     minor, _ = _minor(st, t, choices)
     forced = jnp.asarray(choices.direction) >= 2
     scale = jnp.maximum(scales_t[_I_V][minor], 1e-12)

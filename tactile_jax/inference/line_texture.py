@@ -1104,8 +1104,9 @@ class _Fitter:
         while (_p_value(fit.chi2, fit.dof) < P_POOR and dropped.sum() < max_drop and fit.dof >= 2):
             kept = np.isin(np.arange(self.n), slots)
             last = np.any(heard & (heard[:, kept].sum(axis=1) == 1)[:, None], axis=0)
-            worst = int(np.argmax(np.where(kept & ~last, fit.z, -1)))
-            if not kept[worst] or last[worst] or fit.z[worst] < DROP_Z:
+            z = np.where(kept & ~last, fit.z, -np.inf)
+            worst = int(np.argmax(z))
+            if z[worst] < DROP_Z:
                 break
             dropped[worst] = True
             slots = slots[slots != worst]
