@@ -318,15 +318,14 @@ def probe_signals(scene: Scene, rng=None) -> tuple[np.ndarray, float]:
     eta_rows = (np.arange(plan.P) - plan.c) * plan.D
     strip = None
     if not hasattr(scene.texture, "field"):
-        strip = texture_field(scene.texture, xi_strip, eta_rows, plan.slip_angle, rng, depth=plan.d1)
+        strip = texture_field(scene.texture, xi_strip, eta_rows, plan.slip_angle, rng)
     F = plan.nfft // 2 + 1
     acc = np.zeros((4, F), dtype=complex)
     chunk = max(1, int(1_500_000 // plan.nfft))   # ~60 MB of row spectra per chunk
     for j0 in range(0, plan.P, chunk):
         j1 = min(plan.P, j0 + chunk)
         eta = eta_rows[j0:j1]
-        U = strip[j0:j1] if strip is not None else texture_field(scene.texture, xi_strip, eta, plan.slip_angle,
-                                                                 depth=plan.d1)
+        U = strip[j0:j1] if strip is not None else texture_field(scene.texture, xi_strip, eta, plan.slip_angle)
         Uf = scipy.fft.rfft(U, n=plan.nfft, axis=-1, workers=-1)
         del U
         Hf = scipy.fft.rfft(_kernel_rows(plan, eta), n=plan.nfft, axis=-1, workers=-1)
