@@ -29,6 +29,7 @@ rows are the same.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -53,6 +54,12 @@ FIT_RAN = tuple(s.value for s in STATUS_FIT_RAN)
 DEFAULT_MODEL = "joint"
 #: fewest records per process worth spawning one for (its start and program load cost about as much)
 MIN_PER_PROCESS = 8
+#: the environment of the spawned worker processes where the user has not set these: one BLAS thread each, as
+#: Dask's nanny gives its workers (``distributed.nanny.pre-spawn-environ``). The spectra's Burg recursion and
+#: taper products are numpy BLAS calls on 16,000-sample vectors; with OpenBLAS's own threads, two workers on a
+#: 2-core CPU spent 440 ms a record on them against 9.5 ms with one thread each (benchmarks/throughput.py's
+#: oblique records)
+WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
 @dataclasses.dataclass
@@ -597,12 +604,25 @@ def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_di
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     tag = options_tag(options)
-    with ProcessPoolExecutor(n_proc, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with _worker_environ(), ProcessPoolExecutor(n_proc, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {}
         for size, segs in chunks:
             part = [infos[fi] for fi, _, _ in segs]
             futures[pool.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir)] = (part, segs)
         _collect(futures, as_completed, consume, model, tag)
+
+
+@contextlib.contextmanager
+def _worker_environ():
+    """``WORKER_ENVIRON`` in ``os.environ`` (which spawned processes inherit) while the pool lives, where the
+    user has not set those variables; restored after."""
+    added = {k: v for k, v in WORKER_ENVIRON.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
 
 
 def _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir):

@@ -84,10 +84,13 @@ def burg_ar(x: np.ndarray, order: int) -> np.ndarray:
     x = np.asarray(x, float) - np.mean(x)
     ef, eb = x.copy(), x.copy()
     a = np.ones(1)
+    # the sums by einsum, not BLAS: a threaded BLAS splits a long dot product over its threads, so that the same
+    # samples gave other rounding in a process with one BLAS thread (a batch's workers) than in one with several
+    dot = lambda u, v: float(np.einsum("i,i->", u, v))      # noqa: E731
     for _ in range(order):
         f, b = ef[1:], eb[:-1]
-        den = f @ f + b @ b
-        k = -2.0 * (f @ b) / den if den > 0 else 0.0
+        den = dot(f, f) + dot(b, b)
+        k = -2.0 * dot(f, b) / den if den > 0 else 0.0
         ef, eb = f + k * b, b + k * f
         a = np.concatenate([a, [0.0]])
         a = a + k * a[::-1]
