@@ -306,3 +306,28 @@ def test_workers_get_one_blas_thread_unless_the_user_set_it(monkeypatch):
         assert os.environ["OMP_NUM_THREADS"] == "3"
     assert dict(os.environ) == before
 
+
+
+def test_the_program_is_compiled_once_before_the_workers_start(monkeypatch, tmp_path):
+    """With a persistent cache the batch compiles the analysis program here first (the workers then load it), for
+    the batch's options, once for these sources; a failure leaves it to the workers, and programs this process
+    held stay."""
+    from tactile_jax.batch import run as batch_run
+    from tactile_jax.inference import run
+
+    cache = str(tmp_path / "jax")
+    calls = []
+    monkeypatch.setattr(run, "analyse_one", lambda rec, settings, choices: calls.append(settings.hertz is None))
+    batch_run._compile_here(FitOptions(window="gaussian"), cache)
+    batch_run._compile_here(FitOptions(), cache)
+    batch_run._compile_here(FitOptions(), cache)            # done already: the marker says so
+    assert calls == [True, False]
+
+    def broken(*args):
+        raise RuntimeError("no")
+
+    monkeypatch.setattr(run, "analyse_one", broken)
+    run._programs()
+    batch_run._compile_here(FitOptions(), str(tmp_path / "other" / "jax"))     # no exception
+    assert run._programs.cache_info().currsize == 1        # held before: kept
+    assert not (tmp_path / "other" / "export").exists()

@@ -560,6 +560,10 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
             for size, segs in chunks:
                 consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
         elif local:
+            if cache_dir:
+                bar.set_postfix_str("loading or compiling the analysis program", refresh=True)
+                _compile_here(options, cache_dir)
+                bar.set_postfix_str("", refresh=False)
             _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_dir)
         else:
             _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
@@ -610,6 +614,40 @@ def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_di
             part = [infos[fi] for fi, _, _ in segs]
             futures[pool.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir)] = (part, segs)
         _collect(futures, as_completed, consume, model, tag)
+
+
+def _compile_here(options: FitOptions, cache_dir: str) -> None:
+    """Compile the analysis program in this process, into the persistent cache ``cache_dir``, before the workers
+    start: they then load it, where with a fresh cache each compiled it at the same time, on the same cores (its
+    inputs have one shape whatever the recording, so a noise record stands for every file). Once done for these
+    sources and this program (both windows, or the Gaussian one), a marker beside the cache says so, and later
+    batches start their workers at once. A failure leaves the compilation to the workers."""
+    import jax
+
+    from ..inference import run
+    from ..inference.fit import record_of
+    from ..inference.options import analysis_settings, choices_of
+    from ..inference.select import options_for
+    from ..model.sensor import PAPER_SENSOR
+
+    opts = options_for(options)
+    program = "gaussian" if opts.window == "gaussian" else "default"
+    marker = (Path(cache_dir).parent / "export"
+              / f"compiled-analyse-{program}-x64{int(jax.config.jax_enable_x64)}-{run._source_key()}")
+    if marker.exists():
+        return
+    warm = run._programs.cache_info().currsize > 0     # programs this process holds already stay
+    try:
+        noise = np.random.default_rng(0).standard_normal((4, 4096))
+        rec = record_of(noise, 1000.0, (PAPER_SENSOR.d1, PAPER_SENSOR.d2), opts)
+        run.analyse_one(rec, analysis_settings(opts), choices_of(opts))
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.touch()
+    except Exception:  # noqa: BLE001 - the workers compile it then
+        pass
+    finally:            # this process runs no chunk: its copy of the compiled programs is not kept
+        if not warm:
+            run._programs.cache_clear()
 
 
 @contextlib.contextmanager
