@@ -559,14 +559,15 @@ def run_batch(inputs, out, *, options: FitOptions = FitOptions(), chunk_size: in
         if local and n_proc <= 1:
             for size, segs in chunks:
                 consume(*_run_chunk([infos[fi] for fi, _, _ in segs], segs, size, options, model, x64, cache_dir))
-        elif local:
-            if cache_dir:
+        else:
+            if cache_dir and scheduler is None and chunks:     # workers on this machine, sharing its cache
                 bar.set_postfix_str("loading or compiling the analysis program", refresh=True)
                 _compile_here(options, cache_dir)
                 bar.set_postfix_str("", refresh=False)
-            _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_dir)
-        else:
-            _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
+            if local:
+                _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_dir)
+            else:
+                _run_dask(chunks, infos, options, model, workers, scheduler, consume, x64, cache_dir)
     finally:
         bar.close()
     if not chunks:
