@@ -128,3 +128,18 @@ def test_a_lumpy_textures_random_effects_are_directions_of_the_jacobian():
     np.testing.assert_allclose(from_jac, np.asarray(own), rtol=0, atol=1e-9 * scale.max())
     # a smooth texture's fit has none
     assert not np.asarray(a.lumps).any() and not a.stages.active[an.TL]
+
+
+def test_the_hertz_table_is_converted_once_not_per_call():
+    """Every call's settings hold the Hertz table (52 MB in float32): it is converted to the compute precision once,
+    on the device, with the values a host round trip gives."""
+    import jax
+
+    s = analysis_settings(FitOptions())
+    first, again = run._as_jnp(s).hertz, run._as_jnp(s).hertz
+    assert first is again
+    want = np.float64 if jax.config.jax_enable_x64 else np.float32
+    assert first.dtype == want
+    np.testing.assert_array_equal(np.asarray(first), np.asarray(s.hertz).astype(want))
+    small = jax.numpy.arange(3.0, dtype=jax.numpy.float32)
+    assert run._as_jnp(small).dtype == want

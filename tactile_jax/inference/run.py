@@ -137,10 +137,32 @@ def _exported(fn, name: str, types=()):
     return call
 
 
+#: large device arrays converted to the compute precision, kept: id(source) -> (source, converted). The Hertz
+#: table's coefficients (52 MB in float32) come in every call's settings; converted afresh (through the host)
+#: they cost each analysis about 100 ms
+_CONVERTED: dict = {}
+_CONVERT_KEEP = 1 << 16
+
+
 def _as_jnp(tree):
     dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
 
+    def on_device(x):
+        kind = x.dtype.kind
+        want = dtype if kind == "f" else (jnp.complex128 if dtype == jnp.float64 else jnp.complex64) if kind == "c" \
+            else x.dtype
+        if x.dtype == want:
+            return x
+        if x.size < _CONVERT_KEEP:
+            return x.astype(want)
+        hit = _CONVERTED.get(id(x))
+        if hit is None or hit[0] is not x or hit[1].dtype != want:
+            hit = _CONVERTED[id(x)] = (x, x.astype(want))
+        return hit[1]
+
     def conv(x):
+        if isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer):
+            return on_device(x)
         x = np.asarray(x)
         if x.dtype.kind == "f":
             return jnp.asarray(x, dtype)
