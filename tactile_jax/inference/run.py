@@ -142,6 +142,7 @@ def _exported(fn, name: str, types=()):
 #: they cost each analysis about 100 ms
 _CONVERTED: dict = {}
 _CONVERT_KEEP = 1 << 16
+_CONVERT_KEPT = 4
 
 
 def _as_jnp(tree):
@@ -157,6 +158,8 @@ def _as_jnp(tree):
             return x.astype(want)
         hit = _CONVERTED.get(id(x))
         if hit is None or hit[0] is not x or hit[1].dtype != want:
+            while len(_CONVERTED) >= _CONVERT_KEPT:     # a few are kept, the oldest dropped first
+                _CONVERTED.pop(next(iter(_CONVERTED)))
             hit = _CONVERTED[id(x)] = (x, x.astype(want))
         return hit[1]
 
