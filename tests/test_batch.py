@@ -294,8 +294,8 @@ def test_chunk_spectra_at_once_give_the_same_rows(local_run, dataset, tmp_path, 
 
 
 def test_workers_get_one_blas_thread_unless_the_user_set_it(monkeypatch):
-    """Spawned workers inherit one BLAS thread each (two workers with OpenBLAS's own threads spent 46 times as
-    long on the spectra); a value the user set is kept, and the parent's environment is restored."""
+    """Spawned workers inherit one BLAS thread each (threaded BLAS calls of two workers contend for the same
+    cores); a value the user set is kept, and the parent's environment is restored."""
     from tactile_jax.batch import run as batch_run
 
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
@@ -305,7 +305,6 @@ def test_workers_get_one_blas_thread_unless_the_user_set_it(monkeypatch):
         assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
         assert os.environ["OMP_NUM_THREADS"] == "3"
     assert dict(os.environ) == before
-
 
 
 def test_the_program_is_compiled_once_before_the_workers_start(monkeypatch, tmp_path):

@@ -55,10 +55,10 @@ DEFAULT_MODEL = "joint"
 #: fewest records per process worth spawning one for (its start and program load cost about as much)
 MIN_PER_PROCESS = 8
 #: the environment of the spawned worker processes where the user has not set these: one BLAS thread each, as
-#: Dask's nanny gives its workers (``distributed.nanny.pre-spawn-environ``). The spectra's Burg recursion and
-#: taper products are numpy BLAS calls on 16,000-sample vectors; with OpenBLAS's own threads, two workers on a
-#: 2-core CPU spent 440 ms a record on them against 9.5 ms with one thread each (benchmarks/throughput.py's
-#: oblique records)
+#: Dask's nanny gives its workers (``distributed.nanny.pre-spawn-environ``): threaded BLAS calls of two workers
+#: contend for the same cores. Made with numpy's BLAS dot products on 16,000-sample vectors, two workers' spectra
+#: took 440 ms a record with OpenBLAS's own threads against 9.5 ms with one each (benchmarks/throughput.py's
+#: oblique records); ``segments.burg_ar`` sums with einsum, and its spectra take 11 ms either way
 WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 

@@ -137,41 +137,41 @@ def _exported(fn, name: str, types=()):
     return call
 
 
-#: large device arrays converted to the compute precision, kept: id(source) -> (source, converted). The Hertz
-#: table's coefficients (52 MB in float32) come in every call's settings; converted afresh (through the host)
-#: they cost each analysis about 100 ms
+#: device arrays of at least this many elements converted to the compute precision are kept (at most
+#: ``_CONVERT_MAX_KEPT``, the oldest dropped first): id(source) -> (source, converted). The Hertz table's
+#: coefficients (52 MB in float32) come in every call's settings; converted afresh (through the host) they cost
+#: each analysis about 100 ms
+_CONVERT_MIN_SIZE = 1 << 16
+_CONVERT_MAX_KEPT = 4
 _CONVERTED: dict = {}
-_CONVERT_KEEP = 1 << 16
-_CONVERT_KEPT = 4
 
 
 def _as_jnp(tree):
     dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
 
+    def target(kind):
+        """The compute dtype of a floating or complex kind; None (jax's default) for the others."""
+        return dtype if kind == "f" else (jnp.complex128 if dtype == jnp.float64 else jnp.complex64) if kind == "c" \
+            else None
+
     def on_device(x):
-        kind = x.dtype.kind
-        want = dtype if kind == "f" else (jnp.complex128 if dtype == jnp.float64 else jnp.complex64) if kind == "c" \
-            else x.dtype
+        want = target(x.dtype.kind) or x.dtype
         if x.dtype == want:
             return x
-        if x.size < _CONVERT_KEEP:
+        if x.size < _CONVERT_MIN_SIZE:
             return x.astype(want)
         hit = _CONVERTED.get(id(x))
         if hit is None or hit[0] is not x or hit[1].dtype != want:
-            while len(_CONVERTED) >= _CONVERT_KEPT:     # a few are kept, the oldest dropped first
+            while len(_CONVERTED) >= _CONVERT_MAX_KEPT:
                 _CONVERTED.pop(next(iter(_CONVERTED)))
             hit = _CONVERTED[id(x)] = (x, x.astype(want))
         return hit[1]
 
     def conv(x):
-        if isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer):
+        if isinstance(x, jax.Array):
             return on_device(x)
         x = np.asarray(x)
-        if x.dtype.kind == "f":
-            return jnp.asarray(x, dtype)
-        if x.dtype.kind == "c":
-            return jnp.asarray(x, jnp.complex128 if dtype == jnp.float64 else jnp.complex64)
-        return jnp.asarray(x)
+        return jnp.asarray(x, target(x.dtype.kind))
 
     return jax.tree.map(conv, tree)
 
