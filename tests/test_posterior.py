@@ -168,6 +168,18 @@ def test_a_float32_run_that_strays_is_sampled_again_in_float64(problem, monkeypa
     assert np.array_equal(strayed.theta, plain.theta)
 
 
+def test_a_problem_float32_does_not_carry_is_sampled_in_float64_at_once(problem, monkeypatch):
+    tried = []
+    original = posterior._in_precision
+    monkeypatch.setattr(posterior, "_in_precision", lambda p, precision: tried.append(precision) or original(p, precision))
+    floor = run_emcee(problem._replace(precision="float64"), n_steps=40, seed=5)
+    plain = run_emcee(problem, n_steps=40, seed=5, precision="float64")
+    assert floor.precision == "float64" and np.isnan(floor.lp_error) and not tried
+    assert np.array_equal(floor.theta, plain.theta)
+    with pytest.raises(ValueError, match="problem.precision"):
+        run_emcee(problem._replace(precision="half"), n_steps=10)
+
+
 def test_the_log_prob_runs_any_number_of_walkers_through_one_block_shape(problem):
     lp_block, lp_one = make_log_prob(problem, block=4), make_log_prob(problem, block=1)
     walkers = problem.theta[:2] + 0.01 * np.random.default_rng(0).standard_normal((7, 2))

@@ -391,4 +391,7 @@ def _problem(s: Summary, res: FitResult, curvature_radius, hertz=None) -> FitPro
     return FitProblem(residuals=joint_residuals, args=(s.data, hertz), theta=np.asarray(s.theta),
                       free=tuple(bool(f) for f in np.asarray(s.free)), names=res.names, lower=_bounds(s.theta.size, 0),
                       upper=_bounds(s.theta.size, 1), cov=np.asarray(s.cov), scale=pooled,
-                      to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scales / pooled))
+                      to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scales / pooled),
+                      # under the Hertz disk the conditioned deep PSDs cancel to about 1e-6 of S22, below float32's
+                      # rounding of the entries (docs/posterior.md): a float32 chain would be thrown away
+                      precision="float32" if hertz is None else "float64")

@@ -37,6 +37,9 @@ class FitProblem(NamedTuple):
         for vx, vy and a, which have their own jackknife scales ``s_i``
         (``FitResult.error_scales``), so that sampler and Laplace widths agree
         for them too.
+    precision: the lowest precision a sampler may evaluate ``residuals`` in ("float32" or "float64"):
+        "float64" where float32 is known not to carry the model, so that no float32 run is tried and thrown
+        away (``posterior.run_emcee``).
     """
 
     residuals: Callable
@@ -50,3 +53,4 @@ class FitProblem(NamedTuple):
     scale: float
     to_physical: Callable
     stretch: np.ndarray | None = None
+    precision: str = "float32"

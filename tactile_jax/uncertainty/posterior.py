@@ -302,7 +302,8 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
         in float32 (``problem.args`` cast) where their log-probability keeps within ``PRECISION_TOL``
         of float64's (sd; ``PosteriorResult.lp_error``): at the fit and ``n_walkers`` draws of
         the Laplace approximation before the run, and at ``CHECK_DRAWS`` kept draws after it; where it does not,
-        the chain is sampled (again) in float64 with the same seed.
+        the chain is sampled (again) in float64 with the same seed. A problem whose ``precision`` is
+        "float64" (the joint model under the Hertz disk) is sampled in float64 whatever is asked.
     Walkers start in a Gaussian ball of 0.1 Laplace sd (``problem.cov``; ``1e-4 |theta| + 1e-6``
     where that sd is 0 or not finite) around ``problem.theta``, kept inside the bounds. Warnings
     (as data): ``n_steps < 50 * max(tau)``, mean acceptance outside [0.15, 0.8], stuck walkers.
@@ -322,6 +323,9 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
         raise ValueError(f"thin must be >= 1, got {thin}")
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if problem.precision not in PRECISIONS:
+        raise ValueError(f"problem.precision must be one of {PRECISIONS}, got {problem.precision!r}")
+    precision = max(precision, problem.precision, key=PRECISIONS.index)
     block = -(-n_walkers // 2)                            # the stretch move's half ensemble
     high = make_log_prob(problem, block=block)
     lp_error = math.nan
