@@ -213,6 +213,47 @@ def test_the_solver_keeps_the_best_start_and_holds_the_first_stage_mask():
     assert all(c <= float(np.sum(np.square(_toy(s0, x)[0]))) for c, s0 in zip(cost, starts))
 
 
+def test_a_jacobian_no_step_uses_is_not_asked_for():
+    """``jac_use`` is told which evaluations' Jacobians no step uses (each start only evaluated, the last of each
+    start's exploration): with those Jacobians zeroed the solve is the same, and every other one is asked for."""
+    x = jnp.linspace(0.0, 3.0, 60)
+    starts = jnp.array([[1.0, 0.0], [2.8, 0.0], [5.5, 0.0]])
+    free, first = jnp.array([True, True]), jnp.array([False, True])
+    told = []
+
+    def fun(theta, args):
+        x, used = args
+        jax.debug.callback(lambda u: told.append(bool(u)), used)
+        return _toy(jnp.where(used, theta, jax.lax.stop_gradient(theta)), x)
+
+    for n_start, n_final in ((1, 12), (4, 12)):
+        plain = levenberg_marquardt(_toy, starts, x, free, first, n_start=n_start, n_first=2, n_final=n_final)
+        told.clear()
+        cheap = levenberg_marquardt(fun, starts, (x, True), free, first, n_start=n_start, n_first=2, n_final=n_final,
+                                    jac_use=lambda args, used: (args[0], used))
+        jax.effects_barrier()
+        assert np.array_equal(np.asarray(plain[0]), np.asarray(cheap[0]))
+        assert np.array_equal(np.asarray(plain[2]), np.asarray(cheap[2]))
+        explore = 3 * n_start
+        assert told == [(k + 1) % n_start != 0 or k + 1 > explore for k in range(explore + n_final + 1)]
+
+
+def test_the_hertz_line_integrals_skip_the_tangents_in_p_where_asked():
+    omega = jnp.linspace(5.0, 300.0, 9)
+    p, coef = jnp.array([0.016, 0.011, 1.5e-3]), hertz_table().coef
+    dp, dphi = jnp.array([1e-3, -2e-3, 1e-6]), jnp.linspace(-1.0, 1.0, LOG_PHI.shape[0])
+
+    @jax.jit
+    def jvp(dp, dphi, coef, wanted):
+        return jax.jvp(lambda p, phi: lines.log_matrix(p, phi, ISO, omega, DEPTHS, KNOTS, 1, coef, wanted)[0],
+                       (p, LOG_PHI), (dp, dphi))
+
+    (value, both), (value_no, phi_only) = jvp(dp, dphi, coef, True), jvp(dp, dphi, coef, False)
+    assert np.array_equal(np.asarray(value), np.asarray(value_no))
+    assert np.allclose(np.asarray(jvp(0 * dp, dphi, coef, True)[1]), np.asarray(phi_only), rtol=1e-12, atol=1e-12)
+    assert np.all(np.asarray(jvp(dp, 0 * dphi, coef, False)[1]) == 0.0) and np.any(np.asarray(both) != phi_only)
+
+
 def _counted_solve(traced: str, **fixed):
     """``solve(start, value)``: the toy's final iterations from ``start`` (30 at most) as one program, with
     ``levenberg_marquardt``'s keyword ``traced`` set to ``value`` and ``fixed`` as given; returns theta and

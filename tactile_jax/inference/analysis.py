@@ -235,17 +235,18 @@ class _Plan(NamedTuple):
 
 def _either(theta, args):
     """The joint residuals and model under the window ``args[3]`` says (traced; ``args[2]`` None: the Gaussian
-    window's alone), with the texture random effects' sds and rows ``args[4:]``. Each window is computed only
-    where some record wants it: on one record, one window;
+    window's alone), with the texture random effects' sds and rows ``args[4:6]``, and ``args[6]`` (optional)
+    whether the Jacobian's columns of vx, vy and a are wanted (the solver's ``jac_use``). Each window is
+    computed only where some record wants it: on one record, one window;
     under ``vmap``, a chunk whose records all want one window (every stage but the texture and direction
     refits) computes that one alone, instead of both for every record."""
-    data_g, data_h, coef, use_hertz, lumps, rows = args
+    data_g, data_h, coef, use_hertz, lumps, rows, *wanted = args
     data_g, data_h = (d._replace(lump_sd=lumps, lump_rows=rows) for d in (data_g, data_h))
     if coef is None:
         return residuals_and_model(theta, (data_g, None))
     shape = jax.eval_shape(lambda t: residuals_and_model(t, (data_g, None)), theta)
     blank = lambda t: jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shape)     # noqa: E731
-    hz = jax.lax.cond(any_in_batch(use_hertz), lambda t: residuals_and_model(t, (data_h, coef)), blank, theta)
+    hz = jax.lax.cond(any_in_batch(use_hertz), lambda t: residuals_and_model(t, (data_h, coef, *wanted)), blank, theta)
     gs = jax.lax.cond(any_in_batch(~use_hertz), lambda t: residuals_and_model(t, (data_g, None)), blank, theta)
     return jax.tree.map(lambda h, g: jnp.where(use_hertz, h, g), hz, gs)
 
@@ -580,7 +581,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
             _either, plan.starts, (data_g, data_h, coef, plan.hertz, plan.lumps, plan.lump_rows), plan.free, prep_g.first, n_start=plan.n_start,
             n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
             stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL, give_up_chi2=plan.give_up,
-            give_up_after=GIVE_UP_AFTER)
+            give_up_after=GIVE_UP_AFTER, jac_use=lambda args, used: args + (used,))
         lumped_data = data_g._replace(lump_sd=plan.lumps, lump_rows=plan.lump_rows)
         _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(
             theta, r, jac, plan.free, lumped_data)

@@ -121,15 +121,16 @@ LUMP_SHIFT = np.array([[1.0 if (i < 2 and j < 2) else 0.5 if (i < 2) != (j < 2) 
                        [1.0 if (i >= 2 and j >= 2) else 0.5 if (i < 2) != (j < 2) else 0.0 for i, j in ENTRIES]])
 
 
-def spectra_at_bins(theta, data: JointData, hertz=None, shift=None) -> ModelSpectra:
+def spectra_at_bins(theta, data: JointData, hertz=None, shift=None, p_tangents=True) -> ModelSpectra:
     """``ModelSpectra`` of the parameters ``theta`` (P,) for ``data``, under the Gaussian contact window, or
     under the Hertz window where ``hertz`` holds its table's coefficients (``model.hertz``). shift: (2,) log
-    texture power added to what the x and the y pair hear (``LUMP_SHIFT``; None: 0)."""
+    texture power added to what the x and the y pair hear (``LUMP_SHIFT``; None: 0). p_tangents: (traced
+    bool) whether the tangents in vx, vy and a are wanted (``lines.log_matrix``; False: they are 0)."""
     i = INDEX
     phys = jnp.exp(jnp.stack([theta[i["log_vx"]], theta[i["log_vy"]], theta[i["log_a"]]]))
     aniso = jnp.stack([theta[i[name]] for name in ANISO])
     dens, sign = log_matrix(phys, theta[N_PHYS:], aniso, data.grid_abs, data.depths, data.log_k_knots,
-                            None if hertz is None else 1, hertz)                                # (10, F)
+                            None if hertz is None else 1, hertz, p_tangents)                    # (10, F)
     # gains and levels: x2 has gx, y1 the level ay (power), y2 both (amplitudes: half the power's log)
     level, gx, gy = theta[i["log_ay"]], theta[i["log_gx"]], theta[i["log_gy"]]
     amp = jnp.stack([0.0, gx, 0.5 * level, 0.5 * level + gy])

@@ -224,9 +224,10 @@ def priors(theta, data: JointData):
 def residuals_and_model(theta, args):
     """All weighted residuals (``blocks`` then the ``n_prior`` priors) and the model's spectra.
 
-    args: (``JointData``, the Hertz table's coefficients or None for the Gaussian window)."""
-    data, hertz = args
-    model = spectra_at_bins(theta, data, hertz)
+    args: (``JointData``, the Hertz table's coefficients or None for the Gaussian window), and optionally
+    whether the Jacobian's columns of vx, vy and a are wanted (``forward.spectra_at_bins``'s p_tangents)."""
+    data, hertz, *wanted = args
+    model = spectra_at_bins(theta, data, hertz, p_tangents=wanted[0] if wanted else True)
     return jnp.concatenate([blocks(model, data.meas, data), priors(theta, data)]), model
 
 

@@ -41,7 +41,7 @@ __all__ = ["levenberg_marquardt"]
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
                         stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None,
-                        give_up_after=None):
+                        give_up_after=None, jac_use=None):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
@@ -57,14 +57,18 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     ``soft_after``), the solve also ends once |r|^2 less the decrement still to go is above it (inf: never). A negative
     ``n_final`` with ``skip_starts`` runs nothing (the starts' first row is returned, with zero residuals).
     count: also return how many iterations ran (evaluations of the residuals and their Jacobian).
+    jac_use: ``jac_use(args, used) -> args`` for each evaluation, told (traced bool) whether its Jacobian
+    will be used: not where the next iteration starts afresh (a start only evaluated, as H1's are, or the
+    last of a start's exploration), so that ``fun`` may skip its costly columns there (None: ``args``).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
     explore = n_start * (n_starts if n_explore is None else n_explore)
     offset = jnp.where(skip_starts, explore, 0)
 
-    def value_and_jac(theta):
-        jac, (r, aux) = jax.jacfwd(lambda t: (lambda out: (out[0], out))(fun(t, args)), has_aux=True)(theta)
+    def value_and_jac(theta, used):
+        given = args if jac_use is None else jac_use(args, used)
+        jac, (r, aux) = jax.jacfwd(lambda t: (lambda out: (out[0], out))(fun(t, given)), has_aux=True)(theta)
         return r, jac, aux
 
     def cost_of(r):
@@ -88,7 +92,10 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         delta, g, _ = damped_step(r, jm, mask, lam)
         delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), tiny(delta)))
         trial = jnp.where(fresh, jnp.where(i == 0, starts[0], restart), theta + delta)
-        r_t, j_t, aux_t = value_and_jac(trial)
+        # the next iteration starts afresh (a new start, or the best one's final iterations): no step uses this
+        # Jacobian (the best start is evaluated again)
+        used = ~((k + 1 <= explore) & ((k + 1) % n_start == 0))
+        r_t, j_t, aux_t = value_and_jac(trial, used)
         cost_t = cost_of(r_t)
         pred = -jnp.dot(g, delta) - 0.5 * jnp.sum(jnp.square(jm @ delta))
         rho = (cost - cost_t) / jnp.where(pred > 0, pred, jnp.inf)

@@ -46,7 +46,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .._numerics import tiny
+from .._numerics import any_in_batch, tiny
 from .._quadrature import gauss_legendre
 from .r_curve import log_g
 from . import hertz as hertz_mod
@@ -198,7 +198,7 @@ def _log_abs(top, total):
 
 
 @jax.custom_jvp
-def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz_coef=None):
+def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz_coef=None, p_tangents=True):
     """log|S| and sign of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s:
     (10, F) each.
 
@@ -206,6 +206,9 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz
     ``log_k_knots`` (log rad/m). aniso: (4,) the angular factor's (p, q, p4, q4) (zeros: isotropic).
     depths: (2,) d1, d2 in m. window: 0 Gaussian, 1 Hertz (traced; None: Gaussian); hertz_coef: the
     Hertz table's coefficients (None: a Gaussian-only program). No gains, levels or noise.
+    p_tangents: (traced bool) whether the tangents in p are wanted; False gives them as 0, for a caller
+    that will not use them (a solver's evaluation of a start it only compares by cost). Under the Hertz
+    disk that skips the table's partials and the nodes' tangents: half the Jacobian's cost.
     """
     log_k, log_w, env, mant, cos2, sin2 = _nodes(p, omega, depths[0], depths[1], window, hertz_coef)
     base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
@@ -215,18 +218,30 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz
 
 @log_matrix.defjvp
 def _log_matrix_jvp(primals, tangents):
-    p, log_phi, aniso, omega, depths, log_k_knots, window, hertz_coef = primals
+    p, log_phi, aniso, omega, depths, log_k_knots, window, hertz_coef, p_tangents = primals
     p_dot, phi_dot, aniso_dot = tangents[0], tangents[1], tangents[2]
     d1, d2 = depths[0], depths[1]
-    # the nodes and their three tangents, one jvp each
-    # the Hertz table looked up once, its partials giving every tangent: a lookup per jvp is not merged by XLA
-    # inside the solver's loop (17 ms a Jacobian there against 12, benchmarks/hertz_lookup.py's record)
     only_gauss = _which(window, hertz_coef)[1]
-    lookup = None if only_gauss else _hertz_lookup(p, omega, d1, d2, window, hertz_coef)
-    fn = lambda q: _nodes(q, omega, d1, d2, window, hertz_coef, lookup)            # noqa: E731
-    node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
-    log_k, log_w, env, mant, cos2, sin2 = node_t[0][0]
-    d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = (jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
+
+    def with_tangents():
+        # the nodes and their three tangents, one jvp each
+        # the Hertz table looked up once, its partials giving every tangent: a lookup per jvp is not merged by XLA
+        # inside the solver's loop (17 ms a Jacobian there against 12, benchmarks/hertz_lookup.py's record)
+        lookup = None if only_gauss else _hertz_lookup(p, omega, d1, d2, window, hertz_coef)
+        fn = lambda q: _nodes(q, omega, d1, d2, window, hertz_coef, lookup)            # noqa: E731
+        node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
+        return node_t[0][0], tuple(jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
+
+    def without():
+        nodes = _nodes(p, omega, d1, d2, window, hertz_coef)
+        return nodes, tuple(jnp.zeros((3,) + x.shape, x.dtype) for x in nodes)
+
+    if only_gauss or p_tangents is True:    # the Gaussian window's node tangents cost little beside the rest
+        nodes, node_dots = with_tangents()
+    else:
+        nodes, node_dots = jax.lax.cond(any_in_batch(p_tangents), with_tangents, without)
+    log_k, log_w, env, mant, cos2, sin2 = nodes
+    d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = node_dots
     # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
     spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
