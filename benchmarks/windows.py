@@ -26,6 +26,7 @@ shows the bias of the Gaussian window's radius.
 
     python benchmarks/windows.py --scenes 50 --out benchmarks/out      # 100 scenes, 300 fits: ~26 min on 2 cores
     python benchmarks/windows.py --scenes 6 --out /tmp/win              # a quick look
+    python benchmarks/windows.py --scenes 100 --fits default --out /tmp/win   # the default's window choice alone
 """
 
 from __future__ import annotations
@@ -90,7 +91,7 @@ def _simulate_fresh(scene):
         return tj.simulate(dataclasses.replace(scene, grid_spacing=60e-6))
 
 
-def run_physics(physics: str, n: int, verbose: bool = True) -> list[dict]:
+def run_physics(physics: str, n: int, verbose: bool = True, fits=(*FITS, "scipy")) -> list[dict]:
     rows = []
     nperseg = default_nperseg(int(DURATION * FS))
     for i, scene in enumerate(scenes(physics, n)):
@@ -99,6 +100,8 @@ def run_physics(physics: str, n: int, verbose: bool = True) -> list[dict]:
         row = {"physics": physics, "i": i, "vx_true": vx, "vy_true": vy, "a_true": scene.a,
                "speed": float(np.hypot(vx, vy)), "snr_db": scene.snr_db, "fits": {}}
         for name, window in FITS.items():
+            if name not in fits:
+                continue
             t0 = time.perf_counter()
             res = tj.fit_recording(rec, tj.FitOptions(window=window))
             fit = {k: getattr(res, k) for k in ("vx", "vx_err", "vy", "vy_err", "a", "a_err", "redchi", "window",
@@ -108,15 +111,17 @@ def run_physics(physics: str, n: int, verbose: bool = True) -> list[dict]:
             fit.update({f"{q}_{b}": getattr(res[q], b) for q in ("vx", "vy") for b in ("lo", "hi", "lo2", "hi2", "upper")})
             fit.update(status=str(res.status), seconds=time.perf_counter() - t0, message=res.message)
             row["fits"][name] = fit
-        t0 = time.perf_counter()
-        sp = scipy_reference.fit_record(np.asarray(rec.signals, float), FS, rec.depths[0], rec.depths[1], nperseg)
-        row["fits"]["scipy"] = dict(zip(("vx", "vx_err", "vy", "vy_err", "a", "a_err"),
-                                        (None if not np.isfinite(v) else float(v) for v in sp)),
-                                    status="ok", seconds=time.perf_counter() - t0)
+        if "scipy" in fits:
+            t0 = time.perf_counter()
+            sp = scipy_reference.fit_record(np.asarray(rec.signals, float), FS, rec.depths[0], rec.depths[1], nperseg)
+            row["fits"]["scipy"] = dict(zip(("vx", "vx_err", "vy", "vy_err", "a", "a_err"),
+                                            (None if not np.isfinite(v) else float(v) for v in sp)),
+                                        status="ok", seconds=time.perf_counter() - t0)
         rows.append(row)
         if verbose:
-            d = row["fits"]["default"]
-            print(f"{physics:8s} {i:3d} v=({100 * vx:.2f}, {100 * vy:.2f}) a={1e3 * scene.a:.2f} | default: "
+            name = "default" if "default" in row["fits"] else next(iter(row["fits"]))
+            d = row["fits"][name]
+            print(f"{physics:8s} {i:3d} v=({100 * vx:.2f}, {100 * vy:.2f}) a={1e3 * scene.a:.2f} | {name}: "
                   f"{d['status']} window {d.get('window')} margin {d.get('window_margin')} "
                   f"vx {_f(d['vx'])} vy {_f(d['vy'])} a {_f(d['a'], 1e3)} | "
                   + " ".join(f"{k} {r['seconds']:.2f}s" for k, r in row["fits"].items()), flush=True)
@@ -241,6 +246,8 @@ def figure(rows: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for ax, physics in zip(axes, rows):
         for k, (name, marker) in enumerate((("gaussian", "o"), ("hertz", "s"), ("default", "x"))):
+            if name not in rows[physics][0]["fits"]:
+                continue
             pts = [(r["a_true"], (r["fits"][name]["a"] - r["a_true"]) / r["a_true"]) for r in rows[physics]
                    if r["fits"][name]["status"] == "ok" and r["fits"][name].get("a") is not None]
             if pts:
@@ -262,12 +269,14 @@ def main(argv=None):
     ap.add_argument("--physics", default=",".join(PHYSICS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
     ap.add_argument("--cache", type=Path, default=None, help="folder to keep the simulated recordings in (reused)")
+    ap.add_argument("--fits", default=",".join((*FITS, "scipy")),
+                    help="which fits to run, of " + ", ".join((*FITS, "scipy")) + " (default: all)")
     ap.add_argument("--summarize", type=Path, default=None, metavar="JSON",
                     help="print the table of an earlier run's windows.json instead of fitting")
     args = ap.parse_args(argv)
     if args.summarize is not None:
         saved = json.loads(args.summarize.read_text())
-        summary = {p: {name: summarize(r, name) for name in (*FITS, "scipy")} for p, r in saved["rows"].items()}
+        summary = {p: {name: summarize(r, name) for name in r[0]["fits"]} for p, r in saved["rows"].items()}
         print(f"machine: {saved['machine']}\n\n{table(summary)}")
         cost = saved.get("core_cost")
         if cost:
@@ -280,16 +289,21 @@ def main(argv=None):
         _CACHE.mkdir(parents=True, exist_ok=True)
     physics = [p.strip() for p in args.physics.split(",") if p.strip()]
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = {p: run_physics(p, args.scenes) for p in physics}
-    summary = {p: {name: summarize(r, name) for name in (*FITS, "scipy")} for p, r in rows.items()}
+    fits = [f.strip() for f in args.fits.split(",") if f.strip()]
+    unknown = sorted(set(fits) - {*FITS, "scipy"})
+    if unknown or not fits:
+        ap.error(f"--fits: unknown fit(s) {', '.join(unknown)}; choose from {', '.join((*FITS, 'scipy'))}")
+    rows = {p: run_physics(p, args.scenes, fits=fits) for p in physics}
+    summary = {p: {name: summarize(r, name) for name in r[0]["fits"]} for p, r in rows.items()}
     import jaxlib
 
     machine = (f"{platform.machine()}, {platform.system()}, Python {platform.python_version()}, jax {jax.__version__} "
                f"(jaxlib {jaxlib.__version__}), numpy {np.__version__}")
-    cost = core_cost()
+    cost = core_cost() if set(fits) == {*FITS, "scipy"} else None
     print(f"\nmachine: {machine}\n\n{table(summary)}")
-    print(f"\none joint solve, warm (median): Gaussian {cost['gaussian']:.3f} s, Hertz {cost['hertz']:.3f} s, "
-          f"ratio {cost['ratio']:.2f}")
+    if cost:
+        print(f"\none joint solve, warm (median): Gaussian {cost['gaussian']:.3f} s, Hertz {cost['hertz']:.3f} s, "
+              f"ratio {cost['ratio']:.2f}")
     (args.out / "windows.json").write_text(json.dumps({"machine": machine, "summary": summary, "rows": rows, "core_cost": cost},
                                                       indent=1, default=str))
     figure(rows, args.out / "windows.png")
