@@ -208,7 +208,7 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz
     Hertz table's coefficients (None: a Gaussian-only program). No gains, levels or noise.
     p_tangents: (traced bool) whether the tangents in p are wanted; False gives them as 0, for a caller
     that will not use them (a solver's evaluation of a start it only compares by cost). Under the Hertz
-    disk that skips the table's partials and the nodes' tangents: half the Jacobian's cost.
+    disk that skips the table's partials and the nodes' tangents, the most of its Jacobian.
     """
     log_k, log_w, env, mant, cos2, sin2 = _nodes(p, omega, depths[0], depths[1], window, hertz_coef)
     base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
