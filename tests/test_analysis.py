@@ -94,6 +94,20 @@ def test_a_minor_speed_is_held_below_the_rise_the_caller_asks_for():
     assert int(kept) == an.DA and float(margin) == pytest.approx(direction_keep(5) - 2.5)
 
 
+def test_holding_a_real_minor_speed_gives_up_once_it_cannot_win():
+    """A slip at (3, 0.6) cm/s: holding vy at 0 raises chi-square by far more than the direction test allows, so
+    DA stops after ``GIVE_UP_AFTER`` final iterations and the slip stays oblique; where the user gives the
+    direction, DA runs to its optimum."""
+    options = FitOptions(**GAUSS)
+    rec = simulate(Scene(velocity=(0.03, 0.006), contact_radius=1.5e-3, duration=16.0, snr_db=47.0, seed=40))
+    rec = record_of(np.asarray(rec.signals, float), rec.fs, rec.depths, options)
+    chosen = run.analyse_one(rec, analysis_settings(options), choices_of(options))
+    given = run.analyse_one(rec, analysis_settings(options), choices_of(options)._replace(direction=2))
+    assert int(chosen.direction) == 0 and float(chosen.direction_margin) > 10 * an.DIRECTION_GIVE_UP
+    assert int(chosen.stages.iterations[an.DA]) == an.GIVE_UP_AFTER + 1
+    assert int(given.direction) == 1 and int(given.stages.iterations[an.DA]) > 2 * (an.GIVE_UP_AFTER + 1)
+
+
 @pytest.mark.slow
 def test_a_vmapped_chunk_on_the_cpu_equals_the_single_record_program():
     """The batched path (``jax.vmap`` over a chunk of 4 different records) on the CPU gives each record's

@@ -67,7 +67,7 @@ from .solve import levenberg_marquardt
 
 __all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
            "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
-           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR",
+           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "DIRECTION_GIVE_UP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR",
            "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
 
 STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN", "TL")
@@ -90,6 +90,10 @@ DIRECTION_TESTED = 0.3
 #: a minor speed is held at 0 where holding it raises chi-square by at most this many of its error scale
 #: (Akaike's criterion: one parameter is worth 2)
 DIRECTION_KEEP = 2.0
+#: DA (the minor speed held) gives up, where the direction is chosen, once its |r|^2 less the Gauss-Newton
+#: decrement still to go is this many times the direction test's threshold (``DIRECTION_KEEP`` x the minor speed's
+#: error scale) above where it could still win, tested from ``GIVE_UP_AFTER`` final iterations on
+DIRECTION_GIVE_UP = 3.0
 #: a speed held at 0 is held at this fraction of the other (the parameter is log|v|): its effect on the
 #: spectra, quadratic in it, is 1e-6 of the major speed's
 AXIS_FLOOR = 1e-3
@@ -536,7 +540,18 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         minor, wanted = _minor(st, t, choices)
         theta, free = st.theta[t], st.free[t]
         i, major = _I_V[0] + minor, _I_V[0] + 1 - minor      # vx, vy are adjacent in the parameter vector
-        return from_point(theta.at[i].set(theta[major] + np.log(AXIS_FLOOR)), free.at[i].set(False), hertz, wanted)
+        held = theta.at[i].set(theta[major] + np.log(AXIS_FLOOR))
+        # where the direction is chosen, DA need only go on while it could still win the test of
+        # ``_direction_fit``: |r|^2 (the priors included, the held speed's moved by holding it) no higher than
+        # t's plus DIRECTION_GIVE_UP times the test's threshold
+        centre = jnp.where(hertz, data_h.prior_center[i], data_g.prior_center[i])
+        weight = jnp.where(hertz, data_h.prior_inv_sd[i], data_g.prior_inv_sd[i])
+        prior_rise = jnp.square((held[i] - centre) * weight) - jnp.square((theta[i] - centre) * weight)
+        scale = jnp.maximum(errors_at(st, t).scales[_I_V][minor], 1e-12)
+        bound = (jnp.sum(jnp.square(st.r[t])) + prior_rise
+                 + DIRECTION_GIVE_UP * jnp.asarray(choices.direction_keep) * scale)
+        give_up = jnp.where((jnp.asarray(choices.direction) == 0) & jnp.isfinite(bound), bound, jnp.inf)
+        return from_point(held, free.at[i].set(False), hertz, wanted, give_up)
 
     def direction_index(st):
         t, hertz = texture_index(st)
