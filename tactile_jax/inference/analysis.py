@@ -120,10 +120,6 @@ EXPLORED_GAIN = 0.1
 N_FINAL = 4 * ITERATIONS[2]
 
 _N_FIRST, _N_START, _ = ITERATIONS
-#: iterations of each of G0's Gaussian starts where it scouts the Hertz disk's (``core.ITERATIONS[1]`` where the
-#: Gaussian window is given and G0 is its fit): its ends only choose where H1 starts, and H1 goes on to the
-#: Hertz optimum (``docs/speed.md`` gives what fewer cost and save)
-SCOUT_N_START = 5
 _I_V = np.array([INDEX["log_vx"], INDEX["log_vy"]])
 _I_A = INDEX["log_a"]
 _I_VVA = np.array([INDEX["log_vx"], INDEX["log_vy"], INDEX["log_a"]])
@@ -465,8 +461,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
                      jnp.asarray(give_up), jnp.asarray(lumps), jnp.asarray(lump_rows))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
-    def own_starts(prep, n_explore, hertz, active, n_final=N_FINAL, n_start=_N_START):
-        plan = _Plan(prep.starts, prep.free, jnp.asarray(n_start), jnp.asarray(n_explore), jnp.asarray(n_final),
+    def own_starts(prep, n_explore, hertz, active, n_final=N_FINAL):
+        plan = _Plan(prep.starts, prep.free, jnp.asarray(_N_START), jnp.asarray(n_explore), jnp.asarray(n_final),
                      jnp.asarray(False), jnp.asarray(hertz), jnp.asarray(active))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
@@ -476,7 +472,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
                       jnp.asarray(ITERATIONS[2]), jnp.asarray(True), window == 2, jnp.asarray(True), jnp.asarray(np.inf),
                       jnp.asarray(start.lumps), jnp.asarray(start.lump_rows))
         gauss = own_starts(prep_g, OWN_STARTS["gaussian"], False, True)
-        scout = own_starts(prep_g, N_STARTS, False, True, n_final=0, n_start=SCOUT_N_START)
+        scout = own_starts(prep_g, N_STARTS, False, True, n_final=0)
         plan = jax.tree.map(lambda a, b: jnp.where(window == 1, a, b), gauss, scout)
         return jax.tree.map(lambda a, b: jnp.where(refit, a, b), given, plan)
 
