@@ -54,6 +54,7 @@ from tactile_jax.spectral.estimate import default_nperseg  # noqa: E402
 
 PHYSICS = ("gaussian", "hertz")
 FITS = {"gaussian": "gaussian", "hertz": "hertz", "default": None}
+ALL_FITS = (*FITS, "scipy")             # the package's three and the per-pair scipy reference
 FS, DURATION = 1000.0, 16.0
 DECISIVE = 10.0
 
@@ -91,7 +92,7 @@ def _simulate_fresh(scene):
         return tj.simulate(dataclasses.replace(scene, grid_spacing=60e-6))
 
 
-def run_physics(physics: str, n: int, verbose: bool = True, fits=(*FITS, "scipy")) -> list[dict]:
+def run_physics(physics: str, n: int, verbose: bool = True, fits=ALL_FITS) -> list[dict]:
     rows = []
     nperseg = default_nperseg(int(DURATION * FS))
     for i, scene in enumerate(scenes(physics, n)):
@@ -269,8 +270,7 @@ def main(argv=None):
     ap.add_argument("--physics", default=",".join(PHYSICS))
     ap.add_argument("--out", type=Path, default=Path("benchmarks/out"))
     ap.add_argument("--cache", type=Path, default=None, help="folder to keep the simulated recordings in (reused)")
-    ap.add_argument("--fits", default=",".join((*FITS, "scipy")),
-                    help="which fits to run, of " + ", ".join((*FITS, "scipy")) + " (default: all)")
+    ap.add_argument("--fits", default=",".join(ALL_FITS), help="which fits to run, of " + ", ".join(ALL_FITS) + " (default: all)")
     ap.add_argument("--summarize", type=Path, default=None, metavar="JSON",
                     help="print the table of an earlier run's windows.json instead of fitting")
     args = ap.parse_args(argv)
@@ -290,16 +290,16 @@ def main(argv=None):
     physics = [p.strip() for p in args.physics.split(",") if p.strip()]
     args.out.mkdir(parents=True, exist_ok=True)
     fits = [f.strip() for f in args.fits.split(",") if f.strip()]
-    unknown = sorted(set(fits) - {*FITS, "scipy"})
+    unknown = sorted(set(fits) - set(ALL_FITS))
     if unknown or not fits:
-        ap.error(f"--fits: unknown fit(s) {', '.join(unknown)}; choose from {', '.join((*FITS, 'scipy'))}")
+        ap.error(f"--fits: unknown fit(s) {', '.join(unknown)}; choose from {', '.join(ALL_FITS)}")
     rows = {p: run_physics(p, args.scenes, fits=fits) for p in physics}
     summary = {p: {name: summarize(r, name) for name in r[0]["fits"]} for p, r in rows.items()}
     import jaxlib
 
     machine = (f"{platform.machine()}, {platform.system()}, Python {platform.python_version()}, jax {jax.__version__} "
                f"(jaxlib {jaxlib.__version__}), numpy {np.__version__}")
-    cost = core_cost() if set(fits) == {*FITS, "scipy"} else None
+    cost = core_cost() if set(fits) == set(ALL_FITS) else None
     print(f"\nmachine: {machine}\n\n{table(summary)}")
     if cost:
         print(f"\none joint solve, warm (median): Gaussian {cost['gaussian']:.3f} s, Hertz {cost['hertz']:.3f} s, "
