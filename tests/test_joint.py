@@ -213,6 +213,25 @@ def test_the_solver_keeps_the_best_start_and_holds_the_first_stage_mask():
     assert all(c <= float(np.sum(np.square(_toy(s0, x)[0]))) for c, s0 in zip(cost, starts))
 
 
+def test_a_start_far_behind_an_earlier_one_is_left_early():
+    """``scout_give_up``: a start whose cost stands far above the best an earlier start ended at is left where it
+    stands; the solve ends at the same optimum in fewer evaluations, and a start never left runs as before."""
+    x = jnp.linspace(0.0, 3.0, 60)
+    free, first = jnp.array([True, True]), jnp.array([False, True])
+    for order in ([1, 0, 2], [0, 1, 2]):        # the right basin's start second, then first
+        starts = jnp.array([[2.8, 0.0], [1.0, 0.0], [5.5, 0.0]])[np.array(order)]
+        solve = lambda **kw: levenberg_marquardt(_toy, starts, x, free, first, n_start=8, n_first=2,   # noqa: E731
+                                                 n_final=10, ends=True, count=True, **kw)
+        theta, *_, ends, n = solve()
+        theta_s, *_, ends_s, n_s = solve(scout_give_up=10.0, scout_after=3)
+        assert np.array_equal(np.asarray(theta), np.asarray(theta_s)) and int(n_s) < int(n)
+        right = order.index(0)
+        assert np.array_equal(np.asarray(ends[: right + 1]), np.asarray(ends_s[: right + 1]))
+        cost = lambda t: float(np.sum(np.square(_toy(t, x)[0])))          # noqa: E731
+        for j in range(right + 1, 3):           # left: behind by the factor where it stood
+            assert cost(ends_s[j]) > 10.0 * cost(ends_s[right]) and not np.array_equal(ends[j], ends_s[j])
+
+
 def test_a_jacobian_no_step_uses_is_not_asked_for():
     """``jac_use`` is told which evaluations' Jacobians no step uses (each start only evaluated, the last of each
     start's exploration): with those Jacobians zeroed the solve is the same, and every other one is asked for."""

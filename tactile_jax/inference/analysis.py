@@ -108,6 +108,12 @@ GIVE_UP_FACTOR = 3.0
 #: errors, and runs H1 on the Gaussian contacts and GW1 on the Hertz ones 24 and up to 19 iterations against
 #: 12 and 7
 GIVE_UP_AFTER = 6
+#: a start being explored is left once its cost is this many times the lowest cost an earlier start ended at,
+#: tested from its SCOUT_AFTER-th evaluation on (after the texture-only steps). On 22 records (16 oblique
+#: Gaussian contacts of ``benchmarks/throughput.py``'s pool, 6 of both windows), no start so left would have
+#: ended best after all its iterations, with factors 5-30 and from the 2nd-5th evaluation on
+SCOUT_GIVE_UP = 10.0
+SCOUT_AFTER = 3
 #: the window's need is tested where a is measured to worse than this relative error
 WINDOW_TEST_REL_ERR = 0.05
 #: chi2 rise (in units of a's variance scale) below which a -> infinity is not rejected: one-sided 95 %
@@ -596,7 +602,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
             _either, plan.starts, (data_g, data_h, coef, plan.hertz, plan.lumps, plan.lump_rows), plan.free, prep_g.first, n_start=plan.n_start,
             n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
             stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL, give_up_chi2=plan.give_up,
-            give_up_after=GIVE_UP_AFTER, jac_use=lambda args, used: args + (used,))
+            give_up_after=GIVE_UP_AFTER, jac_use=lambda args, used: args + (used,), scout_give_up=SCOUT_GIVE_UP,
+            scout_after=SCOUT_AFTER)
         lumped_data = data_g._replace(lump_sd=plan.lumps, lump_rows=plan.lump_rows)
         _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(
             theta, r, jac, plan.free, lumped_data)

@@ -41,7 +41,7 @@ __all__ = ["levenberg_marquardt"]
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
                         stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None,
-                        give_up_after=None, jac_use=None):
+                        give_up_after=None, jac_use=None, scout_give_up=None, scout_after=None):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
@@ -60,6 +60,9 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     jac_use: ``jac_use(args, used) -> args`` for each evaluation, told (traced bool) whether its Jacobian
     will be used: not where the next iteration starts afresh (a start only evaluated, as H1's are, or the
     last of a start's exploration), so that ``fun`` may skip its costly columns there (None: ``args``).
+    scout_give_up, scout_after: a start being explored is left (its end is where it stands) once, from its
+    ``scout_after``-th evaluation on, its cost is above ``scout_give_up`` times the lowest cost an earlier start
+    ended at (None: every start runs its ``n_start`` iterations).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
@@ -75,9 +78,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         c = 0.5 * jnp.sum(jnp.square(r))
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
-    def body(i, state, best, last):
+    def body(i, k, state, best, last):
         theta, r, jac, aux, cost, lam, nu = state
-        k = i + offset                                   # the schedule's step
         exploring = k < explore
         local = k % n_start
         # a new start: evaluate it afresh; the end of the starts: go on from the best
@@ -117,7 +119,12 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
                 if give_up_chi2 is not None:
                     after = soft_after if give_up_after is None else give_up_after
                     done = done | (k >= explore + after) & (jnp.sum(jnp.square(new[1])) - dec > give_up_chi2)
-        return (*new, lam, nu), best, last, jnp.asarray(done)
+        k_next = k + 1
+        if scout_give_up is not None:
+            # a start far above the best end so far: its remaining iterations cannot make it the best
+            behind = exploring & (local + 1 >= scout_after) & (local + 1 < n_start) & (new[4] > scout_give_up * best[4])
+            k_next = jnp.where(behind, (k // n_start + 1) * n_start, k_next)
+        return (*new, lam, nu), best, last, jnp.asarray(done), k_next
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
     dtype = starts.dtype
@@ -129,11 +136,12 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     n_total = jnp.where(skip_starts, n_final, explore + n_final)
 
     def step(loop):
-        i, _, *carry = loop
-        *carry, done = body(i, *carry)
-        return i + 1, done, *carry
+        i, k, _, *carry = loop
+        *carry, done, k_next = body(i, k, *carry)
+        return i + 1, k_next, done, *carry
 
-    n_iter, _, (theta, r, jac, aux, _, _, _), _, last = jax.lax.while_loop(
-        lambda loop: (loop[0] < n_total + 1) & ~loop[1], step, (0, jnp.asarray(False), state, best, starts))
+    n_iter, _, _, (theta, r, jac, aux, _, _, _), _, last = jax.lax.while_loop(
+        lambda loop: (loop[1] < offset + n_total + 1) & ~loop[2], step,
+        (0, offset, jnp.asarray(False), state, best, starts))
     out = (theta, r, jac, aux) + ((last,) if ends else ())
     return out + (n_iter,) if count else out
