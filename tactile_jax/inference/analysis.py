@@ -109,11 +109,12 @@ GIVE_UP_FACTOR = 3.0
 #: 12 and 7
 GIVE_UP_AFTER = 6
 #: a start being explored is left once its cost is this many times the lowest cost an earlier start ended at,
-#: tested from its SCOUT_AFTER-th evaluation on (after the texture-only steps). On 22 records (16 oblique
-#: Gaussian contacts of ``benchmarks/throughput.py``'s pool, 6 of both windows), no start so left would have
-#: ended best after all its iterations, with factors 5-30 and from the 2nd-5th evaluation on
+#: tested from its SCOUT_AFTER-th evaluation on (1: the start itself). On 22 records (16 oblique Gaussian
+#: contacts of ``benchmarks/throughput.py``'s pool, 6 of both windows), no start so left would have ended best
+#: after all its iterations, with factors 5-1000 tested from the 1st-5th evaluation on; G0 scouts those 16 in 18
+#: iterations on average, where running every start in full takes 36
 SCOUT_GIVE_UP = 10.0
-SCOUT_AFTER = 3
+SCOUT_AFTER = 1
 #: the window's need is tested where a is measured to worse than this relative error
 WINDOW_TEST_REL_ERR = 0.05
 #: chi2 rise (in units of a's variance scale) below which a -> infinity is not rejected: one-sided 95 %
