@@ -11,7 +11,8 @@ choice is a ``jnp.where`` on the solves' statistics:
 G0    the Gaussian window's starts, each explored (``core``'s step 4): the
       scouting of the Hertz disk's starts; with the window given as Gaussian,
       the Gaussian fit itself
-H1    the Hertz disk from the one of G0's ends of lowest Hertz cost
+H1    the Hertz disk from the one of G0's ends of lowest Hertz cost (of those within
+      ``SCOUT_GIVE_UP`` of the best Gaussian end)
 GW1   the Gaussian window refitted from H1 (its radius scaled to the same second
       moment): the window choice compares the two by chi-square. H1 (against
       G0's scouting), GW1 and GW2 (against the Hertz fit they start from) stop
@@ -491,9 +492,13 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         return jnp.where((window == 0) & jnp.isfinite(bound), bound, jnp.inf)
 
     def plan_h1(st, ends):
-        thetas = ends.at[:, _I_A].add(np.log(HERTZ_PER_GAUSS))
+        # G0's ends in the order of their Gaussian cost, those within SCOUT_GIVE_UP of the best evaluated
+        thetas, costs = ends
+        order = jnp.argsort(costs)
+        near = jnp.maximum(jnp.sum(costs <= SCOUT_GIVE_UP * jnp.min(costs)), 1)
+        thetas = thetas[order].at[:, _I_A].add(np.log(HERTZ_PER_GAUSS))
         active = ~refit & (window != 1)
-        plan = _Plan(thetas, prep_h.free, jnp.asarray(1), jnp.asarray(N_STARTS), jnp.asarray(N_FINAL),
+        plan = _Plan(thetas, prep_h.free, jnp.asarray(1), near, jnp.asarray(N_FINAL),
                      jnp.asarray(False), jnp.asarray(True), active, give_up_against(st, G0))
         return jax.tree.map(lambda a, o: jnp.where(active, a, o), plan, off())
 
@@ -599,12 +604,12 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
     def stage(carry, k):
         st, ends = carry
         plan = jax.lax.switch(k, planners, st, ends)
-        theta, r, jac, model, last, n_iter = levenberg_marquardt(
+        theta, r, jac, model, last, last_cost, n_iter = levenberg_marquardt(
             _either, plan.starts, (data_g, data_h, coef, plan.hertz, plan.lumps, plan.lump_rows), plan.free, prep_g.first, n_start=plan.n_start,
             n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
             stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL, give_up_chi2=plan.give_up,
             give_up_after=GIVE_UP_AFTER, jac_use=lambda args, used: args + (used,), scout_give_up=SCOUT_GIVE_UP,
-            scout_after=SCOUT_AFTER)
+            scout_after=SCOUT_AFTER, end_costs=True)
         lumped_data = data_g._replace(lump_sd=plan.lumps, lump_rows=plan.lump_rows)
         _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(
             theta, r, jac, plan.free, lumped_data)
@@ -621,7 +626,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         new = (theta, plan.free, chi2, redchi, n_data.astype(dtype), status, plan.active, plan.hertz, e, r, jac, model,
                n_iter, plan.lumps)
         st = jax.tree.map(lambda whole, x: whole.at[k].set(x), st, Stages(*new))
-        return (st, jnp.where(k == G0, last, ends)), None
+        ends = jax.tree.map(lambda new, old: jnp.where(k == G0, new, old), (last, last_cost), ends)
+        return (st, ends), None
 
     n = len(STAGES)
     args0 = (data_g, data_h, coef, jnp.asarray(False), jnp.zeros(N_LUMP_SD, dtype), jnp.zeros((N_DATA_ROWS, N_LUMP), dtype))
@@ -636,7 +642,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
                   jnp.zeros(n, bool), stacked(blank), jnp.zeros((n,) + r_shape.shape, dtype),
                   jnp.zeros((n,) + r_shape.shape + (p,), dtype), stacked(model_shape), jnp.zeros(n, jnp.int32),
                   jnp.zeros((n, N_LUMP_SD), dtype))
-    (st, _), _ = jax.lax.scan(stage, (init, prep_g.starts), jnp.arange(n))
+    (st, _), _ = jax.lax.scan(stage, (init, (prep_g.starts, jnp.full(prep_g.starts.shape[0], jnp.inf, dtype))),
+                              jnp.arange(n))
 
     # the choices, from where the stages ended
     w = _window_fit(st, choices, bin_factor)

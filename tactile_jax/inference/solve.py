@@ -41,7 +41,8 @@ __all__ = ["levenberg_marquardt"]
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
                         stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None,
-                        give_up_after=None, jac_use=None, scout_give_up=None, scout_after=None):
+                        give_up_after=None, jac_use=None, scout_give_up=None, scout_after=None,
+                        end_costs: bool = False):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
     free, first: (P,) bool. n_explore: (traced) how many of the starts to explore, the first ones (None:
@@ -62,7 +63,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     last of a start's exploration), so that ``fun`` may skip its costly columns there (None: ``args``).
     scout_give_up, scout_after: a start being explored is left (its end is where it stands) once, from its
     ``scout_after``-th evaluation on, its cost is above ``scout_give_up`` times the lowest cost an earlier start
-    ended at (None: every start runs its ``n_start`` iterations).
+    ended at (None: every start runs its ``n_start`` iterations). end_costs: with ``ends``, also the cost
+    0.5 |r|^2 each start ended at (S,) (inf: not finite, or not explored).
     """
     starts = jnp.asarray(starts)
     n_starts = starts.shape[0]
@@ -78,7 +80,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         c = 0.5 * jnp.sum(jnp.square(r))
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
-    def body(i, k, state, best, last):
+    def body(i, k, state, best, last, last_cost):
         theta, r, jac, aux, cost, lam, nu = state
         exploring = k < explore
         local = k % n_start
@@ -88,6 +90,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         best = jax.tree.map(lambda b, s: jnp.where(ended & (cost < best[4]), s, b), best, state[:5])
         j = jnp.clip(k // n_start - 1, 0, n_starts - 1)                              # the start that ends at k
         last = last.at[j].set(jnp.where(ended, state[0], last[j]))
+        last_cost = last_cost.at[j].set(jnp.where(ended, cost, last_cost[j]))
         restart = jnp.where(k == explore, best[0], starts[jnp.minimum(k // n_start, n_starts - 1)])
         mask = jnp.where(exploring & (local < n_first), first, free)
         jm = jac * mask
@@ -124,7 +127,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
             # a start far above the best end so far: its remaining iterations cannot make it the best
             behind = exploring & (local + 1 >= scout_after) & (local + 1 < n_start) & (new[4] > scout_give_up * best[4])
             k_next = jnp.where(behind, (k // n_start + 1) * n_start, k_next)
-        return (*new, lam, nu), best, last, jnp.asarray(done), k_next
+        return (*new, lam, nu), best, last, last_cost, jnp.asarray(done), k_next
 
     r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
     dtype = starts.dtype
@@ -140,8 +143,8 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         *carry, done, k_next = body(i, k, *carry)
         return i + 1, k_next, done, *carry
 
-    n_iter, _, _, (theta, r, jac, aux, _, _, _), _, last = jax.lax.while_loop(
+    n_iter, _, _, (theta, r, jac, aux, _, _, _), _, last, last_cost = jax.lax.while_loop(
         lambda loop: (loop[1] < offset + n_total + 1) & ~loop[2], step,
-        (0, offset, jnp.asarray(False), state, best, starts))
-    out = (theta, r, jac, aux) + ((last,) if ends else ())
+        (0, offset, jnp.asarray(False), state, best, starts, jnp.full(n_starts, jnp.inf, dtype)))
+    out = (theta, r, jac, aux) + ((last,) if ends else ()) + ((last_cost,) if ends and end_costs else ())
     return out + (n_iter,) if count else out
