@@ -223,11 +223,12 @@ def test_a_start_far_behind_an_earlier_one_is_left_early():
         solve = lambda **kw: levenberg_marquardt(_toy, starts, x, free, first, n_start=8, n_first=2,   # noqa: E731
                                                  n_final=10, ends=True, count=True, **kw)
         theta, *_, ends, n = solve()
-        theta_s, *_, ends_s, n_s = solve(scout_give_up=10.0, scout_after=3)
+        theta_s, *_, ends_s, costs_s, n_s = solve(scout_give_up=10.0, scout_after=3, end_costs=True)
         assert np.array_equal(np.asarray(theta), np.asarray(theta_s)) and int(n_s) < int(n)
         right = order.index(0)
         assert np.array_equal(np.asarray(ends[: right + 1]), np.asarray(ends_s[: right + 1]))
         cost = lambda t: float(np.sum(np.square(_toy(t, x)[0])))          # noqa: E731
+        assert np.allclose(np.asarray(costs_s), [0.5 * cost(e) for e in ends_s], rtol=1e-12)
         for j in range(right + 1, 3):           # left: behind by the factor where it stood
             assert cost(ends_s[j]) > 10.0 * cost(ends_s[right]) and not np.array_equal(ends[j], ends_s[j])
 
