@@ -59,6 +59,11 @@ MIN_PER_PROCESS = 8
 #: contend for the same cores. Made with numpy's BLAS dot products on 16,000-sample vectors, two workers' spectra
 #: took 440 ms a record with OpenBLAS's own threads against 9.5 ms with one each (benchmarks/throughput.py's
 #: oblique records); ``segments.burg_ar`` sums with einsum, and its spectra take 11 ms either way
+#: each spawned worker runs on a core of its own, where there are enough: XLA then sizes its thread pool to one,
+#: and two workers on two cores no longer share four threads (256 oblique records, `benchmarks/throughput.py`:
+#: 8.95 rec/s against 7.34 unpinned). Its reductions are then split differently from a process that
+#: sees every core, so rows agree with `fit`'s to about 1e-9 relative, not in every digit
+PIN_WORKERS = True
 WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
 
@@ -609,12 +614,30 @@ def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_di
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     tag = options_tag(options)
-    with _worker_environ(), ProcessPoolExecutor(n_proc, mp_context=multiprocessing.get_context("spawn")) as pool:
+    context = multiprocessing.get_context("spawn")
+    with _worker_environ(), ProcessPoolExecutor(n_proc, mp_context=context, **_pinning(context, n_proc)) as pool:
         futures = {}
         for size, segs in chunks:
             part = [infos[fi] for fi, _, _ in segs]
             futures[pool.submit(_run_chunk, part, segs, size, options, model, x64, cache_dir)] = (part, segs)
         _collect(futures, as_completed, consume, model, tag)
+
+
+def _pinning(context, n_proc: int) -> dict:
+    """``ProcessPoolExecutor``'s arguments that pin each of ``n_proc`` workers to a core of its own
+    (``PIN_WORKERS``), where this process may run on that many; else none."""
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_setaffinity") else []
+    if not PIN_WORKERS or len(cores) < n_proc:
+        return {}
+    queue = context.Queue()
+    for core in cores[:n_proc]:
+        queue.put(core)
+    return {"initializer": _pin_to_core, "initargs": (queue,)}
+
+
+def _pin_to_core(queue) -> None:
+    """A worker's initializer: run on the next core of ``queue`` alone."""
+    os.sched_setaffinity(0, {queue.get()})
 
 
 def _compile_here(options: FitOptions, cache_dir: str) -> None:
