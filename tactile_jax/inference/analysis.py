@@ -14,7 +14,8 @@ G0    the Gaussian window's starts, each explored (``core``'s step 4): the
 H1    the Hertz disk from the one of G0's ends of lowest Hertz cost (of those within
       ``SCOUT_GIVE_UP`` of the best Gaussian end)
 GW1   the Gaussian window refitted from H1 (its radius scaled to the same second
-      moment): the window choice compares the two by chi-square. H1 (against
+      moment), or from G0's best end where that fits better: the window choice
+      compares the two by chi-square. H1 (against
       G0's scouting), GW1 and GW2 (against the Hertz fit they start from) stop
       once they could no longer win the choice (``GIVE_UP_FACTOR``); the
       window margin is then the one where the loser stopped
@@ -256,7 +257,9 @@ def _either(theta, args):
     data_g, data_h = (d._replace(lump_sd=lumps, lump_rows=rows) for d in (data_g, data_h))
     if coef is None:
         return residuals_and_model(theta, (data_g, None))
-    shape = jax.eval_shape(lambda t: residuals_and_model(t, (data_g, None)), theta)
+    # (the module's function itself, not a lambda: jax keeps its shapes for these inputs, and the trace of the
+    # program asks for them once instead of at every trace of this function)
+    shape = jax.eval_shape(residuals_and_model, theta, (data_g, None))
     blank = lambda t: jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shape)     # noqa: E731
     hz = jax.lax.cond(any_in_batch(use_hertz), lambda t: residuals_and_model(t, (data_h, coef, *wanted)), blank, theta)
     gs = jax.lax.cond(any_in_batch(~use_hertz), lambda t: residuals_and_model(t, (data_g, None)), blank, theta)
@@ -508,7 +511,11 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
                           give_up_against(st, k))
 
     def plan_gw1(st, ends):
-        return gauss_from(st, H1, True)
+        # from H1's solution or from G0's best Gaussian end, whichever fits better (each evaluated once)
+        plan = gauss_from(st, H1, True)
+        two = plan._replace(starts=plan.starts.at[1].set(st.theta[G0]), n_explore=jnp.asarray(2),
+                            skip=jnp.asarray(False))
+        return jax.tree.map(lambda a, o: jnp.where(plan.active, a, o), two, plan)
 
     def plan_hx(st, ends):
         first = _first_window(st, bin_factor)

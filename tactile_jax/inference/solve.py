@@ -129,7 +129,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
             k_next = jnp.where(behind, (k // n_start + 1) * n_start, k_next)
         return (*new, lam, nu), best, last, last_cost, jnp.asarray(done), k_next
 
-    r_shape, aux_shape = jax.eval_shape(lambda t: fun(t, args), starts[0])
+    r_shape, aux_shape = jax.eval_shape(fun, starts[0], args)     # a caller's earlier shapes of ``fun`` serve
     dtype = starts.dtype
     zeros = lambda s: jnp.zeros(s.shape, s.dtype)        # noqa: E731
     state = (starts[0], jnp.zeros(r_shape.shape, dtype), jnp.zeros(r_shape.shape + starts.shape[1:], dtype),
