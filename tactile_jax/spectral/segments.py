@@ -217,10 +217,13 @@ def segments(signals, fs: float, *, method: str = "welch", nperseg: int | None =
     xy = (np.conj(spec[0:2, None]) * spec[None, 2:4]).reshape(4, n_seg, m) / (np.conj(resp[0]) * resp[1])
     group, count = _groups(n_seg)
     m_out = min(m, N_BINS)
+    # the groups are runs of consecutive segments: each run summed in order (``np.add.reduceat``, the sums
+    # ``np.add.at`` gives, in a tenth of its time)
+    first = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
 
     def grouped(v):
         out = np.zeros((N_GROUPS,) + v.shape[:1] + (N_BINS,), v.dtype)
-        np.add.at(out, (group, slice(None), slice(0, m_out)), np.moveaxis(v[..., :m_out], 1, 0))
+        out[group[first], :, :m_out] = np.moveaxis(np.add.reduceat(v[..., :m_out], first, axis=1), 1, 0)
         return out
 
     return Segments(grouped(auto), grouped(csd), grouped(xy), count, np.asarray(omega[1]), np.asarray(m_out),
