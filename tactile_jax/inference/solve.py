@@ -16,7 +16,9 @@ an optimum (a profile point, a held slip direction) takes a few iterations
 instead of the full count. A solve that is only needed to beat a given
 chi-square can also give up (``give_up_chi2``): once its own chi-square, less
 that decrement, stays above the bound, more iterations cannot change the
-decision it serves.
+decision it serves. A start being explored can likewise be left once its cost
+stands far above the cost an earlier start ended at (``scout_give_up``): its
+end is then where it stood.
 
 Why not optimistix: its solvers stop per problem too, but with a per-step
 overhead of about 1 ms per record on a CPU, and the multi-start schedule
