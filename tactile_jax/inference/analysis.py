@@ -8,7 +8,8 @@ solve the record does not need is switched off (no iteration runs) and every
 choice is a ``jnp.where`` on the solves' statistics:
 
 ====  ==========================================================================
-G0    the Gaussian window's starts, each explored (``core``'s step 4): the
+G0    the Gaussian window's starts, each explored (``core``'s step 4), a start
+      far behind an earlier one's end left early (``SCOUT_GIVE_UP``): the
       scouting of the Hertz disk's starts; with the window given as Gaussian,
       the Gaussian fit itself
 H1    the Hertz disk from the one of G0's ends of lowest Hertz cost (of those within
