@@ -71,8 +71,8 @@ from .solve import levenberg_marquardt
 
 __all__ = ["Choices", "Analysis", "Stages", "analyse", "summary_of", "STAGES", "WINDOWS", "TEXTURES", "DIRECTIONS",
            "WINDOW_DECISIVE", "DIRECTIONAL_EXPLAINS", "DETECTING", "TEXTURE_AVERAGED", "DIRECTION_TESTED",
-           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "DIRECTION_GIVE_UP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER", "WINDOW_TEST_REL_ERR",
-           "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
+           "AXIS_FLOOR", "A_NEGLIGIBLE", "DIRECTION_KEEP", "DIRECTION_GIVE_UP", "GIVE_UP_FACTOR", "GIVE_UP_AFTER",
+           "SCOUT_GIVE_UP", "SCOUT_AFTER", "WINDOW_TEST_REL_ERR", "DELTA_95", "EXPLORED_GAIN", "N_FINAL"]
 
 STAGES = ("G0", "H1", "GW1", "HX", "GW2", "GF", "T2", "T4", "DA", "WN", "TL")
 G0, H1, GW1, HX, GW2, GF, T2, T4, DA, WN, TL = range(len(STAGES))
@@ -506,7 +506,8 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
         # and the best end with its radius as it is: a Gaussian fit of a Hertz contact can read the disk's radius
         # itself, and a wrong scaling costs H1 iterations or its basin. On the 100 Hertz scenes of
         # benchmarks/windows.py: H1 27.5 iterations on average against 32.8, and a slow oblique slip under a
-        # 2.1 mm disk found (ok, a 2.03 mm) where the scaled starts ended poor at a 3.9 mm
+        # 2.1 mm disk found (ok, a 2.03 mm) where the scaled starts ended poor at a 3.9 mm. It takes the slot after
+        # the near ends, or the last one's where all are near
         slot = jnp.minimum(near, thetas.shape[0] - 1)
         thetas = scaled.at[slot].set(thetas[0])
         active = ~refit & (window != 1)

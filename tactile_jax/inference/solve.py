@@ -43,7 +43,7 @@ __all__ = ["levenberg_marquardt"]
 def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int, n_final,
                         n_explore=None, skip_starts=False, lam0=1e-3, max_step=1.0, ends: bool = False,
                         stop_tol=None, count: bool = False, soft_after=None, soft_tol=None, give_up_chi2=None,
-                        give_up_after=None, jac_use=None, scout_give_up=None, scout_after=None,
+                        give_up_after=None, jac_use=None, scout_give_up=None, scout_after: int = 1,
                         end_costs: bool = False):
     """Minimise 0.5 |r|^2 for ``fun(theta, args) -> (r, aux)`` from ``starts`` (S, P) (see the module).
 
@@ -64,7 +64,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
     will be used: not where the next iteration starts afresh (a start only evaluated, as H1's are, or the
     last of a start's exploration), so that ``fun`` may skip its costly columns there (None: ``args``).
     scout_give_up, scout_after: a start being explored is left (its end is where it stands) once, from its
-    ``scout_after``-th evaluation on, its cost is above ``scout_give_up`` times the lowest cost an earlier start
+    ``scout_after``-th evaluation on (1: the start itself), its cost is above ``scout_give_up`` times the lowest cost an earlier start
     ended at (None: every start runs its ``n_start`` iterations). end_costs: with ``ends``, also the cost
     0.5 |r|^2 each start ended at (S,) (inf: not finite, or not explored).
     """
