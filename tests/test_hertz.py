@@ -209,3 +209,34 @@ def test_a_vmapped_chunk_runs_the_far_field_only_where_a_record_needs_it(fns):
     branch = jax.vmap(lambda v: jax.lax.cond(any_in_batch(v > 0), lambda: v + 1.0, lambda: v))
     assert "select_n" not in str(jax.make_jaxpr(branch)(x))
     np.testing.assert_array_equal(branch(x), x + 1.0)
+
+
+def test_all_depths_at_once_and_a_corner_of_the_table(fns):
+    """``hertz_hn_depths`` (one gather a node for every depth, values only) gives ``hertz_hn``'s values, far field
+    and radii of large delta included; a corner of the table (``corner``) gives the same values inside it and NaN
+    beyond it, never a value read off its edge."""
+    f, _, table = fns
+    rng = np.random.default_rng(11)
+    both = jax.jit(lambda ks, kp, a, coef: hertz.hertz_hn_depths(ks, kp, jnp.asarray(DEPTHS), a,
+                                                                  table._replace(coef=coef)))
+    for a, kmax in ((1.0e-3, 60.0), (6e-3, 170.0), (0.15e-3, 30.0)):       # inside, far field, delta above the table
+        ks, kp = (x / a for x in _nodes(rng, kmax))
+        ks, kp = ks[:2], kp[:2]                 # two positions' groups: (kx, ky) and (ky, kx) in the joint model
+        # channels (group 0, depth 0), (0, 1), (1, 0), (1, 1)
+        hn = np.asarray(_call(f, ks[[0, 0, 1, 1]], kp[[0, 0, 1, 1]], DEPTHS, a)[0])
+        got = np.asarray(both(ks, kp, a, table.coef))                      # (depth, group, nodes)
+        want = np.stack([hn[[0, 2]], hn[[1, 3]]])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14 * np.max(np.abs(want)))
+    a = 1.0e-3
+    ks, kp = (x / a for x in _nodes(rng, 60.0))
+    ks, kp = ks[:2], kp[:2]
+    whole = np.asarray(both(ks, kp, a, table.coef))
+    inside = hertz.corner(table.coef, 61.0)
+    assert inside.shape[1] < table.coef.shape[1] / 6
+    np.testing.assert_array_equal(np.asarray(both(ks, kp, a, inside)), whole)
+    small = np.asarray(both(ks, kp, a, hertz.corner(table.coef, 40.0)))
+    beyond = np.maximum(np.abs(ks), np.abs(kp)) * a > 40.0 + table.meta.h + 1e-9
+    assert beyond.any() and np.isnan(small[:, beyond]).all()
+    np.testing.assert_array_equal(small[:, np.maximum(np.abs(ks), np.abs(kp)) * a <= 40.0],
+                                  whole[:, np.maximum(np.abs(ks), np.abs(kp)) * a <= 40.0])
+    assert hertz.corner(table.coef, table.meta.kmax) is table.coef

@@ -258,6 +258,29 @@ def test_a_jacobian_no_step_uses_is_not_asked_for():
         assert told == [(k + 1) % n_start != 0 or k + 1 > explore for k in range(explore + n_final + 1)]
 
 
+def test_the_hertz_values_alone_are_the_tangents_values():
+    """Under the Hertz window alone, in float64, the values are computed from the table's Hn as they are (one
+    exponential a node, no envelope): the same as the values beside the tangents (the envelope's form) and as
+    with the window traced (both windows' factors, the Hertz ones chosen), to rounding."""
+    omega = jnp.linspace(5.0, 300.0, 9)
+    p, coef = jnp.array([0.016, 0.011, 1.5e-3]), hertz_table().coef
+    dp = jnp.array([1e-3, -2e-3, 1e-6])
+
+    @jax.jit
+    def three(p, coef, window):
+        value = lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS, 1, coef, False)
+        beside = jax.jvp(lambda q: lines.log_matrix(q, LOG_PHI, ISO, omega, DEPTHS, KNOTS, 1, coef, True), (p,),
+                         (dp,))[0]
+        traced = lines.log_matrix(p, LOG_PHI, ISO, omega, DEPTHS, KNOTS, window, coef, False)
+        return value, beside, traced
+
+    (value, sign), (beside, sign_b), (traced, sign_t) = three(p, coef, jnp.asarray(1))
+    assert np.all(np.asarray(value) > -1e4) and np.array_equal(np.asarray(sign), np.asarray(sign_b))
+    np.testing.assert_allclose(np.asarray(value), np.asarray(beside), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(value), np.asarray(traced), rtol=0, atol=1e-12)
+    assert np.array_equal(np.asarray(sign), np.asarray(sign_t))
+
+
 def test_the_hertz_line_integrals_skip_the_tangents_in_p_where_asked():
     omega = jnp.linspace(5.0, 300.0, 9)
     p, coef = jnp.array([0.016, 0.011, 1.5e-3]), hertz_table().coef

@@ -192,6 +192,15 @@ def test_the_log_prob_runs_any_number_of_walkers_through_one_block_shape(problem
         make_log_prob(problem, block=0)
 
 
+def test_threads_evaluate_the_blocks_of_a_call_side_by_side(problem):
+    walkers = problem.theta[:2] + 0.01 * np.random.default_rng(1).standard_normal((16, 2))
+    one, two = make_log_prob(problem, block=4), make_log_prob(problem, block=4, workers=2)
+    assert np.array_equal(one(walkers), two(walkers)) and np.array_equal(one(walkers[:3]), two(walkers[:3]))
+    with pytest.raises(ValueError, match="workers"):
+        make_log_prob(problem, workers=0)
+    assert posterior.cores() >= 1
+
+
 def test_too_few_walkers(problem):
     with pytest.raises(ValueError, match="n_walkers"):
         run_emcee(problem, n_walkers=3, n_steps=10)
@@ -360,3 +369,31 @@ def test_diagnose_messages():
     assert any("acceptance fraction 0.05 outside [0.15, 0.8]" in m for m in msgs)
     assert any("1 of 8 walkers stuck" in m for m in msgs)
     assert any("not estimable" in m for m in _diagnose(8, 1000, np.array([np.nan, 1.0]), 0.5, acc, lp * 0, 2))
+
+
+@pytest.mark.slow
+def test_a_hertz_fit_is_sampled_on_the_corner_of_the_table_its_walkers_read():
+    """The sampler reads the Hertz table's corner its walkers need (``FitProblem.sampling_args``): the same
+    log-probabilities as the whole table at draws of the Laplace approximation, and none where a walker's line
+    integrals leave the corner (its radius eight times the fit's)."""
+    from tactile_jax.inference.fit import fit_recording
+    from tactile_jax.inference.options import FitOptions
+    from tactile_jax.simulation.scene import Scene, simulate
+    from tactile_jax.simulation.texture import RandomTexture
+
+    rec = simulate(Scene(texture=RandomTexture(), fs=1000.0, duration=8.0, snr_db=50.0, seed=3, velocity=(0.02, 0.02),
+                         contact_radius=1.0e-3, window="hertz"))
+    res = fit_recording(rec, FitOptions())
+    pr = res.problem
+    assert res.window == "hertz" and res.status == "ok" and pr.precision == "float64"
+    assert pr.sampling_args[1].shape[1] < pr.args[1].shape[1] / 4
+    idx = np.flatnonzero(pr.free)
+    draws = posterior._laplace_draws(pr, idx, 16, 0)
+    whole, corner = make_log_prob(pr._replace(sampling_args=None)), make_log_prob(pr, workers=2)
+    np.testing.assert_allclose(corner(draws), whole(draws), rtol=1e-12)
+    far = np.asarray(pr.theta, float)[idx][None].copy()
+    i = list(idx).index(pr.names.index("log_a"))
+    far[0, i] += np.log(8.0) * pr.stretch[pr.names.index("log_a")]
+    assert np.isfinite(whole(far)[0]) and corner(far)[0] == -np.inf
+    post = run_emcee(pr, n_walkers=32, n_steps=20)
+    assert post.precision == "float64" and np.all(np.isfinite(post.log_prob))

@@ -19,10 +19,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..contract import SENSOR_DEFAULT, Recording, validate_recording
 from ..errors import TactileInputError
+from ..model import hertz as hertz_mod
+from ..model import lines
 from ..model.sensor import PAPER_SENSOR
 from ..status import Status
 from ..uncertainty.profile import add_profiles
@@ -31,7 +34,7 @@ from . import select as model_select
 from .analysis import WINDOWS, Analysis, summary_of
 from .core import Record, Settings, Summary
 from .describe import result_from_analysis
-from .forward import PARAMS
+from .forward import INDEX, PARAMS
 from .options import FitOptions, analysis_settings, choices_of, known_gains, options_from_file, settings_of
 from .pair_fit import fit_pair
 from .problem import FitProblem
@@ -385,10 +388,26 @@ def _select(refit: _Refitter, s: Summary, options: FitOptions):
     return None, ""
 
 
+#: a sampler's walkers read the Hertz table's corner out to this factor times the fit's largest |k| a (plus
+#: ``CORNER_PAD``); a walker whose line integrals reach beyond it (its radius, or its frequency-to-wavenumber map,
+#: about half again the fit's: tens of the posterior's sds) has no log-probability
+CORNER_FACTOR = 1.5
+CORNER_PAD = 4.0
+
+
+def _sampling_args(data, hertz, theta):
+    """The Hertz problem's arguments for a sampler: the table cut to the corner its walkers read (``hertz.corner``),
+    whose lookups cost a fraction of the whole table's (a 1 mm disk reads a twentieth of it)."""
+    p = jnp.exp(jnp.asarray(np.asarray(theta)[[INDEX["log_vx"], INDEX["log_vy"], INDEX["log_a"]]]))
+    kappa = float(lines.hertz_kappa(p, jnp.asarray(data.grid_abs), jnp.asarray(data.depths)[0]))
+    return data, hertz_mod.corner(hertz, CORNER_FACTOR * kappa + CORNER_PAD)
+
+
 def _problem(s: Summary, res: FitResult, curvature_radius, hertz=None) -> FitProblem:
     scales = np.asarray(s.scales)
     pooled = float(s.pooled)
     return FitProblem(residuals=joint_residuals, args=(s.data, hertz), theta=np.asarray(s.theta),
+                      sampling_args=None if hertz is None else _sampling_args(s.data, hertz, s.theta),
                       free=tuple(bool(f) for f in np.asarray(s.free)), names=res.names, lower=_bounds(s.theta.size, 0),
                       upper=_bounds(s.theta.size, 1), cov=np.asarray(s.cov), scale=pooled,
                       to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scales / pooled),

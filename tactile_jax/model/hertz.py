@@ -75,6 +75,7 @@ __all__ = [
     "build_table",
     "hertz_table",
     "table_of",
+    "corner",
     "hertz_hn",
     "hertz_factors",
     "hertz_lookup",
@@ -329,6 +330,18 @@ def table_of(coef) -> HertzTable:
     return HertzTable(coef, hertz_table().meta)
 
 
+def corner(coef, kappa: float):
+    """The default table's coefficients ``coef`` (T, S * S) cut to the corner that serves |kappa_s|, |kappa_p| <= kappa
+    (T, n * n): lookups at such nodes read a slice n^2 / S^2 the size (``table_of`` takes them as they are). A kappa that
+    reaches the far field's blend gets the whole table back."""
+    meta = hertz_table().meta
+    s = int(round(np.sqrt(coef.shape[1])))
+    if kappa >= meta.kmax - _BLEND:
+        return coef
+    n = min(s, meta.mirror + int(np.ceil(kappa / meta.h)) + meta.degree + 2)
+    return coef.reshape(coef.shape[0], s, s)[:, :n, :n].reshape(coef.shape[0], n * n)
+
+
 def _weights(t, p):
     """B-spline weights at fractional positions t (lists of p+1 arrays shaped like t) and their
     t-derivatives (Horner with Python-float coefficients: fuses into one elementwise loop)."""
@@ -414,6 +427,13 @@ def _block_sums(meta: _Meta, sl_v, sl_d, dep, xs, xp, dt):
     return val, d_s, d_p, d_d
 
 
+def _cap(meta: _Meta, coef):
+    """The largest grid position |kappa| / h the coefficients ``coef`` (T, S * S) serve: the table's kmax, or less
+    for coefficients cut to a corner of the table (``cut_table``)."""
+    s = int(round(np.sqrt(coef.shape[1])))
+    return float(min(meta.kmax / meta.h, s - meta.mirror - meta.degree - 1))
+
+
 def _core(meta: _Meta, depth_index, ks, kp, depths, a, coef):
     """Hn and its partials in (kappa_s, kappa_p, delta) at the nodes: 4 arrays shaped like ks
     (inside the table; the caller applies the cut-off). The nodes are looked up ``CHUNK`` at a time."""
@@ -422,7 +442,7 @@ def _core(meta: _Meta, depth_index, ks, kp, depths, a, coef):
     a = jnp.asarray(a, dt)
     delta = jnp.asarray(depths, dt) / a
     sl_v, sl_d = _slices(coef, meta, delta)                      # (D, S, S) each
-    cap = float(meta.kmax / meta.h)
+    cap = _cap(meta, coef)
     xs = jnp.minimum(jnp.abs(ks * a) / meta.h, cap).ravel()
     xp = jnp.minimum(jnp.abs(kp * a) / meta.h, cap).ravel()
     dep = jnp.broadcast_to(jnp.asarray(depth_index, jnp.int32).reshape((-1,) + (1,) * (ks.ndim - 1)),
@@ -433,7 +453,55 @@ def _core(meta: _Meta, depth_index, ks, kp, depths, a, coef):
     pad = chunks * size - n
     flat = [jnp.pad(x, (0, pad)).reshape(chunks, size) for x in (dep, xs, xp)]
     out = lax.map(lambda c: _block_sums(meta, sl_v, sl_d, *c, dt), flat)     # 4 x (chunks, size)
-    return tuple(o.ravel()[:n].reshape(ks.shape) for o in out)
+    out = tuple(o.ravel()[:n].reshape(ks.shape) for o in out)
+    if cap < meta.kmax / meta.h:     # a corner of the table (``corner``): nodes beyond it have no value
+        beyond = (jnp.abs(ks * a) > cap * meta.h) | (jnp.abs(kp * a) > cap * meta.h)
+        out = tuple(jnp.where(beyond, jnp.nan, o) for o in out)
+    return out
+
+
+def hertz_hn_depths(k_s, k_p, depths, a, table: HertzTable):
+    """Hn at every depth (D, G, ...) for the positions (k_s, k_p) (G, ...) rad/m: one gather a node serves all the
+    depths (their slices interleaved), for the values alone (no tangents; the far field and delta below the table
+    as in ``hertz_hn``). A corner of the table (``corner``) gives NaN beyond it."""
+    meta, coef = table.meta, table.coef
+    dt = jnp.result_type(k_s, k_p, depths, a, float)
+    a = jnp.asarray(a, dt)
+    depths = jnp.asarray(depths, dt)
+    delta = depths / a
+    p = meta.degree
+    sl = jnp.moveaxis(_slices(coef, meta, delta)[0], 0, -1)                # (S, S, D)
+    cap = _cap(meta, coef)
+    ks = jnp.abs(jnp.asarray(k_s, dt) * a)
+    kp = jnp.abs(jnp.asarray(k_p, dt) * a)
+    xs = jnp.minimum(ks / meta.h, cap).ravel()
+    xp = jnp.minimum(kp / meta.h, cap).ravel()
+    n = xs.shape[0]
+    chunks = max(1, -(-n // CHUNK))
+    size = -(-n // chunks)
+    pad = chunks * size - n
+    dnums = lax.GatherDimensionNumbers(offset_dims=(0, 1, 2), collapsed_slice_dims=(), start_index_map=(0, 1))
+
+    def block(c):
+        xs, xp = c
+        i_s, i_p = jnp.floor(xs), jnp.floor(xp)
+        ws = _weights(xs - i_s, p)[0]
+        wp = _weights(xp - i_p, p)[0]
+        idx = jnp.stack([i_s.astype(jnp.int32) + meta.mirror, i_p.astype(jnp.int32) + meta.mirror], axis=-1)
+        b = lax.gather(sl, idx, dnums, slice_sizes=(p + 1, p + 1, depths.shape[0]),
+                       mode=lax.GatherScatterMode.PROMISE_IN_BOUNDS)            # (p+1, p+1, D, size)
+        return sum(ws[i] * sum(wp[j] * b[i, j] for j in range(p + 1)) for i in range(p + 1))   # (D, size)
+
+    flat = [jnp.pad(x, (0, pad)).reshape(chunks, size) for x in (xs, xp)]
+    val = jnp.moveaxis(lax.map(block, flat), 1, 0).reshape(depths.shape[0], -1)[:, :n].reshape(
+        (depths.shape[0],) + ks.shape)
+    if cap < meta.kmax / meta.h:
+        val = jnp.where((ks > cap * meta.h) | (kp > cap * meta.h), jnp.nan, val)
+    depth_index = tuple(i for i in range(depths.shape[0]) for _ in range(ks.shape[0]))
+    rep = lambda x: jnp.broadcast_to(x, (depths.shape[0],) + x.shape).reshape((-1,) + x.shape[1:])   # noqa: E731
+    out = _finish(meta, depth_index, True, rep(jnp.asarray(k_s, dt)), rep(jnp.asarray(k_p, dt)), depths, a,
+                  *(val.reshape((-1,) + ks.shape[1:]),) * 4, far_nodes=cap * meta.h > meta.kmax - _BLEND)[0]
+    return out.reshape((depths.shape[0],) + ks.shape)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -691,7 +759,12 @@ _BLEND = 12.0     # width (kappa units) of the table -> far-field blend at the t
 
 def _all(meta: _Meta, depth_index, far_field, ks, kp, depths, a, coef):
     """Hn and its partials (kappa_s, kappa_p, delta) at the nodes, everything included."""
-    val, g_s, g_p, g_d = _core(meta, depth_index, ks, kp, depths, a, coef)
+    return _finish(meta, depth_index, far_field, ks, kp, depths, a, *_core(meta, depth_index, ks, kp, depths, a, coef))
+
+
+def _finish(meta: _Meta, depth_index, far_field, ks, kp, depths, a, val, g_s, g_p, g_d, far_nodes=True):
+    """The table's Hn and partials at the nodes with delta below the table and the far field beyond it applied
+    (``far_nodes`` False: no node reaches the far field's blend, as on a corner of the table)."""
     dt = val.dtype
     a = jnp.asarray(a, dt)
     delta_d = jnp.asarray(depths, dt) / a
@@ -737,6 +810,8 @@ def _all(meta: _Meta, depth_index, far_field, ks, kp, depths, a, coef):
     # when some record of the chunk does: each branch changes only the nodes that need it)
     args = (val, g_s, g_p, g_d)
     args = lax.cond(any_in_batch(lax.stop_gradient(delta_d) < meta.delta_min), small, lambda *x: x, *args)
+    if not far_nodes:
+        return args
     return lax.cond(any_in_batch(lax.stop_gradient(m) > lo), far, lambda *x: x, *args)
 
 

@@ -43,6 +43,8 @@ per parameter.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -52,7 +54,7 @@ from .r_curve import log_g
 from . import hertz as hertz_mod
 from .spline import log_phi_at
 
-__all__ = ["ENTRIES", "N_NODES", "log_matrix", "log_angular"]
+__all__ = ["ENTRIES", "N_NODES", "log_matrix", "log_angular", "hertz_kappa"]
 
 #: (channel, channel) of each entry of ``log_matrix``; channels (x1, x2, y1, y2)
 ENTRIES = ((0, 0), (0, 1), (1, 1), (2, 2), (2, 3), (3, 3), (0, 2), (0, 3), (1, 2), (1, 3))
@@ -95,6 +97,13 @@ def _nodes(p, omega, d1, d2, window=None, hertz_coef=None, lookup=None):
         return log_k, log_w, h_env, h_mant, cos2, sin2
     use = window == 1
     return log_k, log_w, jnp.where(use, h_env, g_env), jnp.where(use, h_mant, 1.0), cos2, sin2
+
+
+def hertz_kappa(p, omega, d1):
+    """The largest |kx| a, |ky| a of the line's nodes for (vx, vy, a) = p at omega (F,) under the Hertz window: the
+    corner of the table its lookups read (``hertz.corner``)."""
+    kx, ky = _line(p, omega, d1, 1, jnp.zeros((1, 1)))[2:4]
+    return jnp.max(jnp.maximum(jnp.abs(kx), jnp.abs(ky))) * p[2]
 
 
 def _which(window, hertz_coef):
@@ -197,7 +206,6 @@ def _log_abs(top, total):
     return jnp.maximum(out, -1e4), jnp.where(total < 0, -1.0, 1.0).astype(total.dtype)
 
 
-@jax.custom_jvp
 def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz_coef=None, p_tangents=True):
     """log|S| and sign of the ten entries (``ENTRIES``) of the spectral matrix at omega (F,) >= 0 rad/s:
     (10, F) each.
@@ -210,15 +218,45 @@ def log_matrix(p, log_phi, aniso, omega, depths, log_k_knots, window=None, hertz
     that will not use them (a solver's evaluation of a start it only compares by cost). Under the Hertz
     disk that skips the table's partials and the nodes' tangents, the most of its Jacobian.
     """
+    # a window given as a Python number stays static inside the custom_jvp (its arguments are traced): only that
+    # window's factors are then computed, in the values as in the tangents
+    static = None if not (window is None or isinstance(window, (int, float))) else (1 if window == 1 else 0)
+    return _log_matrix(static, p, log_phi, aniso, omega, depths, log_k_knots, window, hertz_coef, p_tangents)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _log_matrix(static, p, log_phi, aniso, omega, depths, log_k_knots, window, hertz_coef, p_tangents):
+    window = window if static is None else static
+    if _which(window, hertz_coef)[0] and jnp.result_type(p, omega) == jnp.float64:
+        return _hertz_values(p, log_phi, aniso, omega, depths, log_k_knots, hertz_coef)
     log_k, log_w, env, mant, cos2, sin2 = _nodes(p, omega, depths[0], depths[1], window, hertz_coef)
     base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
     top, _, total = _signed_sum(*_entries(base, env, mant))
     return _log_abs(top, total)
 
 
-@log_matrix.defjvp
-def _log_matrix_jvp(primals, tangents):
+def _hertz_values(p, log_phi, aniso, omega, depths, log_k_knots, hertz_coef):
+    """``log_matrix``'s values under the Hertz window alone, in float64: the table's Hn enter as they are, without
+    the envelope that keeps the tangents finite through their zeros, so an entry is
+    e^top sum_n e^(base_n - top) Hn_i Hn_j, one exponential a node for the ten entries (the envelope's form takes
+    ten, and the envelope itself as much as the table's lookup). The line's nodes keep |k_s| d below 74, so Hn
+    stays above about e^-74 and products of two far above float64's underflow."""
+    d1, d2 = depths[0], depths[1]
+    log_k, log_w, kx, ky, cos2, sin2 = _line(p, omega, d1, 1, hertz_coef)
+    h = hertz_mod.hertz_hn_depths(jnp.stack([kx, ky]), jnp.stack([ky, kx]), jnp.stack([d1, d2]), p[2],
+                                  hertz_mod.table_of(hertz_coef))                     # (depth, pair, F, N)
+    hn = (h[0, 0], h[1, 0], h[0, 1], h[1, 1])
+    base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
+    top = jnp.max(base, axis=-1)
+    weight = jnp.exp(base - top[:, None])
+    total = jnp.stack([jnp.sum(weight * hn[i] * hn[j], axis=-1) for i, j in ENTRIES])
+    return _log_abs(jnp.broadcast_to(top, total.shape), total)
+
+
+@_log_matrix.defjvp
+def _log_matrix_jvp(static, primals, tangents):
     p, log_phi, aniso, omega, depths, log_k_knots, window, hertz_coef, p_tangents = primals
+    window = window if static is None else static
     p_dot, phi_dot, aniso_dot = tangents[0], tangents[1], tangents[2]
     d1, d2 = depths[0], depths[1]
     only_gauss = _which(window, hertz_coef)[1]
