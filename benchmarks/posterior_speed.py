@@ -1,7 +1,7 @@
 """`fit --mcmc`: what the posterior costs after the fit, and what sampling in float32 changes.
 
-For each scene (an oblique Gaussian contact, a Hertz contact, a slip 8 deg off x under a large Gaussian
-contact; 16 s at 1 kHz, 50 dB, seed 3) the default fit runs, then ``run_emcee`` with the CLI's defaults (32
+For each scene (an oblique Gaussian contact, a small and a large Hertz contact, a slip 8 deg off x under a large
+Gaussian contact; 16 s at 1 kHz, 50 dB, seed 3) the default fit runs, then ``run_emcee`` with the CLI's defaults (32
 walkers x 500 steps, seed 0): in float32, the default (median of ``--repeats`` runs), and in float64 (one run,
 the reference of the same process). The first call's compilation is excluded. Reported per scene: seconds
 after the fit, ESS, largest tau, the float32 log-probability's sd from float64 (``PosteriorResult.lp_error``)
@@ -46,6 +46,7 @@ from tactile_jax.uncertainty.posterior import make_log_prob, run_emcee  # noqa: 
 SCENES = {
     "Gaussian, (3.0, 1.2) cm/s, a 1.5 mm": dict(velocity=(0.03, 0.012), contact_radius=1.5e-3, window="gaussian"),
     "Hertz, (2.0, 2.0) cm/s, a 1.0 mm": dict(velocity=(0.02, 0.02), contact_radius=1.0e-3, window="hertz"),
+    "Hertz, (3.0, 1.0) cm/s, a 2.5 mm": dict(velocity=(0.03, 0.01), contact_radius=2.5e-3, window="hertz"),
     "Gaussian, 8 deg off x, 4 cm/s, a 3.0 mm": dict(velocity=(0.04 * np.cos(np.radians(8)),
                                                               0.04 * np.sin(np.radians(8))),
                                                     contact_radius=3.0e-3, window="gaussian"),

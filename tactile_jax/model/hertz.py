@@ -395,6 +395,22 @@ def _slices(coef, meta: _Meta, delta):
     return jnp.stack(vals), jnp.stack(ders).astype(coef.dtype)
 
 
+def _value_slices(coef, meta: _Meta, delta):
+    """The coefficient slices of Hn alone at the depths' delta (D,), interleaved: (S, S, D), in delta's dtype."""
+    # one contraction writes them in that order: on the whole table 0.10 ms a walker, against 0.19 ms for
+    # ``_slices`` (with the delta-derivative's slices) and a transpose
+    p = meta.degree
+    x = (jnp.log(jnp.clip(delta, meta.delta_min, meta.delta_max)) - meta.t0) / meta.dt
+    i = jnp.clip(jnp.floor(x), 0, meta.nt - 2)
+    w = jnp.stack(_weights(x - i, p)[0], axis=-1)                             # (D, p+1)
+    # delta > delta_max (unsupported): the leading 1/delta law, as in ``_slices``
+    w = w * jnp.where(delta > meta.delta_max, meta.delta_max / delta, 1.0)[:, None]
+    blk = jnp.stack([lax.dynamic_slice_in_dim(coef, i[k].astype(jnp.int32), p + 1, axis=0)
+                     for k in range(delta.shape[0])]).astype(delta.dtype)     # (D, p+1, S*S)
+    s = int(round(np.sqrt(coef.shape[1])))
+    return jnp.einsum("dm,dmn->nd", w, blk, precision=lax.Precision.HIGHEST).reshape(s, s, delta.shape[0])
+
+
 #: nodes per chunk of the table lookup: each chunk's gathered blocks (value in float64, the delta-derivative in
 #: the table's float32: 4 x 4 x 12 bytes a node, 1.5 MB) stay in cache until contracted, and a vmapped chunk of
 #: 1,024 records holds 1.6 GB of them at a time (all of a record's 46,000 nodes at once: 9 GB); on the CPU
@@ -470,7 +486,7 @@ def hertz_hn_depths(k_s, k_p, depths, a, table: HertzTable):
     depths = jnp.asarray(depths, dt)
     delta = depths / a
     p = meta.degree
-    sl = jnp.moveaxis(_slices(coef, meta, delta)[0], 0, -1)                # (S, S, D)
+    sl = _value_slices(coef, meta, delta)                                   # (S, S, D)
     cap = _cap(meta, coef)
     ks = jnp.abs(jnp.asarray(k_s, dt) * a)
     kp = jnp.abs(jnp.asarray(k_p, dt) * a)
