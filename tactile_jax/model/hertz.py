@@ -893,7 +893,7 @@ def _default_depth_index(k_s, depths):
 
 
 def hertz_hn(k_s, k_p, depths, a, table: HertzTable | None = None, depth_index=None,
-             far_field: bool = True):
+             far_field: bool = True, lookup: Lookup | None = None):
     """Normalised Hertz line response Hn = H / (pi a / 2) (signed, dimensionless) at the nodes.
 
     k_s: (C, ...) wavenumber along each channel's sensitive axis, rad/m (x pair: kx, y pair: ky).
@@ -903,11 +903,14 @@ def hertz_hn(k_s, k_p, depths, a, table: HertzTable | None = None, depth_index=N
     C = 4 and D = 2). far_field: static; False replaces the large-kappa asymptote beyond the table
     by a smooth cut-off to 0 (cheaper when nodes reach beyond kappa ~ 148).
     Differentiable (forward and reverse mode) in k_s, k_p, depths and a; the result has the
-    floating dtype of the inputs (float32 in, float32 out).
+    floating dtype of the inputs (float32 in, float32 out). lookup: ``hertz_lookup`` at these nodes (None: looked
+    up here); Hn and its tangents then come from it.
     """
-    table = hertz_table() if table is None else table
     depth_index = _default_depth_index(k_s, depths) if depth_index is None else tuple(depth_index)
     k_s, k_p = jnp.broadcast_arrays(jnp.asarray(k_s), jnp.asarray(k_p))
+    if lookup is not None:
+        return _hn_given(depth_index, k_s, k_p, jnp.asarray(depths), jnp.asarray(a), lookup)
+    table = hertz_table() if table is None else table
     return _hn(table.meta, depth_index, bool(far_field), k_s, k_p, jnp.asarray(depths), jnp.asarray(a),
                table.coef)
 

@@ -236,21 +236,35 @@ def _log_matrix(static, p, log_phi, aniso, omega, depths, log_k_knots, window, h
 
 
 def _hertz_values(p, log_phi, aniso, omega, depths, log_k_knots, hertz_coef):
-    """``log_matrix``'s values under the Hertz window alone, in float64: the table's Hn enter as they are, without
-    the envelope that keeps the tangents finite through their zeros, so an entry is
-    e^top sum_n e^(base_n - top) Hn_i Hn_j, one exponential a node for the ten entries (the envelope's form takes
-    ten, and the envelope itself as much as the table's lookup). The line's nodes keep |k_s| d below 74, so Hn
-    stays above about e^-74 and products of two far above float64's underflow."""
-    d1, d2 = depths[0], depths[1]
-    log_k, log_w, kx, ky, cos2, sin2 = _line(p, omega, d1, 1, hertz_coef)
-    h = hertz_mod.hertz_hn_depths(jnp.stack([kx, ky]), jnp.stack([ky, kx]), jnp.stack([d1, d2]), p[2],
-                                  hertz_mod.table_of(hertz_coef))                     # (depth, pair, F, N)
-    hn = (h[0, 0], h[1, 0], h[0, 1], h[1, 1])
+    """``log_matrix``'s values under the Hertz window alone, in float64 (``_raw_nodes``)."""
+    log_k, log_w, hn, cos2, sin2 = _raw_nodes(p, omega, depths[0], depths[1], hertz_coef)
     base = log_phi_at(log_k, log_k_knots, log_phi) + log_angular(cos2, sin2, aniso)[0] + log_w
+    return _log_abs(*_raw_sum(base, hn)[::2])
+
+
+def _raw_nodes(p, omega, d1, d2, hertz_coef, lookup=None):
+    """``_nodes`` under the Hertz window alone, in float64, with the channels' factors the table's Hn as they are:
+    (log_k, log_w, hn (4, F, N), cos2, sin2). An entry is then e^top sum_n e^(base_n - top) Hn_i Hn_j, one
+    exponential a node for the ten entries, and no envelope (which keeps the factors' logs finite through the zeros
+    of Hn, and float32 above its underflow): the line's nodes keep |k_s| d below 74, so Hn stays above about e^-74
+    and products of two far above float64's underflow. lookup: the table's values and partials at these nodes
+    (their tangents; None: the values alone, one gather a node for both depths)."""
+    log_k, log_w, kx, ky, cos2, sin2 = _line(p, omega, d1, 1, hertz_coef)
+    if lookup is None:
+        h = hertz_mod.hertz_hn_depths(jnp.stack([kx, ky]), jnp.stack([ky, kx]), jnp.stack([d1, d2]), p[2],
+                                      hertz_mod.table_of(hertz_coef))                 # (depth, pair, F, N)
+        hn = jnp.stack([h[0, 0], h[1, 0], h[0, 1], h[1, 1]])
+    else:
+        hn = hertz_mod.hertz_hn(*_hertz_args(kx, ky, d1, d2, p[2], hertz_coef), lookup=lookup)
+    return log_k, log_w, hn, cos2, sin2
+
+
+def _raw_sum(base, hn):
+    """The ten entries from ``_raw_nodes``' factors: (top (10, F), weights e^(base - top) (F, N), sums (10, F))."""
     top = jnp.max(base, axis=-1)
     weight = jnp.exp(base - top[:, None])
     total = jnp.stack([jnp.sum(weight * hn[i] * hn[j], axis=-1) for i, j in ENTRIES])
-    return _log_abs(jnp.broadcast_to(top, total.shape), total)
+    return jnp.broadcast_to(top, total.shape), weight, total
 
 
 @_log_matrix.defjvp
@@ -259,42 +273,59 @@ def _log_matrix_jvp(static, primals, tangents):
     window = window if static is None else static
     p_dot, phi_dot, aniso_dot = tangents[0], tangents[1], tangents[2]
     d1, d2 = depths[0], depths[1]
-    only_gauss = _which(window, hertz_coef)[1]
+    only_hertz, only_gauss = _which(window, hertz_coef)
+    raw = only_hertz and jnp.result_type(p, omega) == jnp.float64
+
+    def nodes_at(q, lookup=None):
+        if raw:
+            return _raw_nodes(q, omega, d1, d2, hertz_coef, lookup)
+        return _nodes(q, omega, d1, d2, window, hertz_coef, lookup)
 
     def with_tangents():
         # the nodes and their three tangents, one jvp each
         # the Hertz table looked up once, its partials giving every tangent: a lookup per jvp is not merged by XLA
         # inside the solver's loop (17 ms a Jacobian there against 12, benchmarks/hertz_lookup.py's record)
         lookup = None if only_gauss else _hertz_lookup(p, omega, d1, d2, window, hertz_coef)
-        fn = lambda q: _nodes(q, omega, d1, d2, window, hertz_coef, lookup)            # noqa: E731
+        fn = lambda q: nodes_at(q, lookup)                                            # noqa: E731
         node_t = [jax.jvp(fn, (p,), (jnp.zeros_like(p).at[i].set(1.0),)) for i in range(3)]
         return node_t[0][0], tuple(jnp.stack(t) for t in zip(*(tan for _, tan in node_t)))
 
     def without():
-        nodes = _nodes(p, omega, d1, d2, window, hertz_coef)
+        # the values as with_tangents has them, to the last bit (a solver compares the two paths' costs)
+        nodes = nodes_at(p, _hertz_lookup(p, omega, d1, d2, window, hertz_coef) if raw else None)
         return nodes, tuple(jnp.zeros((3,) + x.shape, x.dtype) for x in nodes)
 
     if only_gauss or p_tangents is True:    # the Gaussian window's node tangents cost little beside the rest
         nodes, node_dots = with_tangents()
     else:
         nodes, node_dots = jax.lax.cond(any_in_batch(p_tangents), with_tangents, without)
-    log_k, log_w, env, mant, cos2, sin2 = nodes
-    d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = node_dots
+    if raw:
+        (log_k, log_w, mant, cos2, sin2), (d_log_k, d_log_w, d_mant, d_cos2, d_sin2) = nodes, node_dots
+    else:
+        log_k, log_w, env, mant, cos2, sin2 = nodes
+        d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = node_dots
     # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
     spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
     basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
     log_ang, da_c, da_s, da_coef = log_angular(cos2, sin2, aniso)
     base = phi + log_ang + log_w
-    terms, m = _entries(base, env, mant)                                          # (10, F, N)
-    top, weight, total = _signed_sum(terms, m)
+    if raw:         # one weight a node for the ten entries; the factors' products carry their signs and sizes
+        m = jnp.stack([mant[i] * mant[j] for i, j in ENTRIES])                    # (10, F, N)
+        top, weight, total = _raw_sum(base, mant)
+    else:
+        terms, m = _entries(base, env, mant)                                      # (10, F, N)
+        top, weight, total = _signed_sum(terms, m)
     out, out_sign = _log_abs(top, total)
     floor = out > -1e4
     # S = e^top sum w m: d log|S| = sum w (m dT + dm) / sum w m, finite where a factor changes sign
     inv = 1.0 / jnp.where(jnp.abs(total) > 0, total, 1.0)
     wm = weight * m * inv[..., None]                                              # (10, F, N)
     d_base = dphi * d_log_k + d_log_w + da_c * d_cos2 + da_s * d_sin2            # (3, F, N)
-    d_terms = jnp.stack([d_base + d_env[:, i] + d_env[:, j] for i, j in ENTRIES], axis=1)   # (3, 10, F, N)
+    if raw:
+        d_terms = d_base[:, None]                                                 # (3, 1, F, N)
+    else:
+        d_terms = jnp.stack([d_base + d_env[:, i] + d_env[:, j] for i, j in ENTRIES], axis=1)   # (3, 10, F, N)
     d_m = jnp.stack([d_mant[:, i] * mant[j] + mant[i] * d_mant[:, j] for i, j in ENTRIES], axis=1)
     jac_p = jnp.moveaxis(jnp.sum(wm * d_terms + weight * inv[..., None] * d_m, axis=-1), 0, -1)   # (10, F, 3)
     jac_phi = jnp.einsum("efn,fnj->efj", wm, basis)                               # (10, F, n)
