@@ -305,9 +305,9 @@ def _log_matrix_jvp(static, primals, tangents):
         log_k, log_w, env, mant, cos2, sin2 = nodes
         d_log_k, d_log_w, d_env, d_mant, d_cos2, d_sin2 = node_dots
     # the spline's value and slope in log k at the nodes, and its basis (linear in the knot values)
-    spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi)                      # noqa: E731
+    spline = lambda lk: log_phi_at(lk, log_k_knots, log_phi, "scan")              # noqa: E731
     phi, dphi = jax.jvp(spline, (log_k,), (jnp.ones_like(log_k),))
-    basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y))(log_phi)     # (F, N, n)
+    basis = jax.jacfwd(lambda y: log_phi_at(log_k, log_k_knots, y, "scan"))(log_phi)     # (F, N, n)
     log_ang, da_c, da_s, da_coef = log_angular(cos2, sin2, aniso)
     base = phi + log_ang + log_w
     if raw:         # one weight a node for the ten entries; the factors' products carry their signs and sizes
