@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._cores import usable_cores
 from ..errors import TactileInputError
 from ..status import FIT_RAN as STATUS_FIT_RAN, TRANSIENT
 from ..inference.options import FitOptions
@@ -626,7 +627,7 @@ def _run_processes(chunks, infos, options, model, n_proc, consume, x64, cache_di
 def _pinning(context, n_proc: int) -> dict:
     """``ProcessPoolExecutor``'s arguments that pin each of ``n_proc`` workers to a core of its own
     (``PIN_WORKERS``), where this process may run on that many; else none."""
-    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_setaffinity") else []
+    cores = usable_cores() if hasattr(os, "sched_setaffinity") else []
     if not PIN_WORKERS or len(cores) < n_proc:
         return {}
     queue = context.Queue()

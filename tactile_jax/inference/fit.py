@@ -16,6 +16,7 @@ say why (bad input raises ``TactileInputError``; ``batch`` turns it into a row).
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -407,7 +408,8 @@ def _problem(s: Summary, res: FitResult, curvature_radius, hertz=None) -> FitPro
     scales = np.asarray(s.scales)
     pooled = float(s.pooled)
     return FitProblem(residuals=joint_residuals, args=(s.data, hertz), theta=np.asarray(s.theta),
-                      sampling_args=None if hertz is None else _sampling_args(s.data, hertz, s.theta),
+                      sampling_args=None if hertz is None else functools.partial(_sampling_args, s.data, hertz,
+                                                                                   s.theta),
                       free=tuple(bool(f) for f in np.asarray(s.free)), names=res.names, lower=_bounds(s.theta.size, 0),
                       upper=_bounds(s.theta.size, 1), cov=np.asarray(s.cov), scale=pooled,
                       to_physical=_to_physical(curvature_radius), stretch=np.sqrt(scales / pooled),

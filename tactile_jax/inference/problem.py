@@ -37,9 +37,10 @@ class FitProblem(NamedTuple):
         for vx, vy and a, which have their own jackknife scales ``s_i``
         (``FitResult.error_scales``), so that sampler and Laplace widths agree
         for them too.
-    sampling_args: what a sampler passes to ``residuals`` in place of ``args``, or None (``args``): the same
-        residuals wherever the sampler's walkers go, and none (NaN) far beyond them, at a fraction of the cost
-        (``fit`` cuts the Hertz table to the corner its walkers read, ``model.hertz.corner``).
+    sampling_args: a function of no arguments giving what a sampler passes to ``residuals`` in place of
+        ``args``, or None (``args``): the same residuals wherever the sampler's walkers go, and none (NaN) far
+        beyond them, at a fraction of the cost (``fit`` cuts the Hertz table to the corner its walkers read,
+        ``model.hertz.corner``; computed when a sampler asks, not at every fit).
     precision: the lowest precision a sampler may evaluate ``residuals`` in ("float32" or "float64"):
         "float64" where float32 is known not to carry the model, so that no float32 run is tried and thrown
         away (``posterior.run_emcee``).
@@ -57,4 +58,4 @@ class FitProblem(NamedTuple):
     to_physical: Callable
     stretch: np.ndarray | None = None
     precision: str = "float32"
-    sampling_args: Any = None
+    sampling_args: Callable[[], Any] | None = None

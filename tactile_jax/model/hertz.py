@@ -445,35 +445,45 @@ def _block_sums(meta: _Meta, sl_v, sl_d, dep, xs, xp, dt):
 
 def _cap(meta: _Meta, coef):
     """The largest grid position |kappa| / h the coefficients ``coef`` (T, S * S) serve: the table's kmax, or less
-    for coefficients cut to a corner of the table (``cut_table``)."""
+    for coefficients cut to a corner of the table (``corner``)."""
     s = int(round(np.sqrt(coef.shape[1])))
     return float(min(meta.kmax / meta.h, s - meta.mirror - meta.degree - 1))
+
+
+def _off_corner(meta: _Meta, cap: float, kappa_s, kappa_p, values):
+    """``values`` with NaN at the nodes beyond a corner of the table (|kappa_s| or |kappa_p| above what ``cap``
+    serves): there they would read the corner's edge. On the whole table, ``values`` as they are."""
+    if cap >= meta.kmax / meta.h:
+        return values
+    beyond = (kappa_s > cap * meta.h) | (kappa_p > cap * meta.h)
+    return tuple(jnp.where(beyond, jnp.nan, v) for v in values)
+
+
+def _chunked(fn, *flat):
+    """``fn`` over the flat node arrays ``flat`` (n,), ``CHUNK`` nodes at a time (``lax.map`` over padded chunks):
+    its outputs (..., size) back as (..., n)."""
+    n = flat[0].shape[0]
+    chunks = max(1, -(-n // CHUNK))
+    size = -(-n // chunks)
+    out = lax.map(lambda c: fn(*c), [jnp.pad(x, (0, chunks * size - n)).reshape(chunks, size) for x in flat])
+    return jax.tree.map(lambda o: jnp.moveaxis(o, 0, -2).reshape(o.shape[1:-1] + (-1,))[..., :n], out)
 
 
 def _core(meta: _Meta, depth_index, ks, kp, depths, a, coef):
     """Hn and its partials in (kappa_s, kappa_p, delta) at the nodes: 4 arrays shaped like ks
     (inside the table; the caller applies the cut-off). The nodes are looked up ``CHUNK`` at a time."""
     dt = jnp.result_type(ks, kp, depths, a, float)
-    ks, kp = ks.astype(dt), kp.astype(dt)
     a = jnp.asarray(a, dt)
+    kappa_s, kappa_p = jnp.abs(ks.astype(dt) * a), jnp.abs(kp.astype(dt) * a)
     delta = jnp.asarray(depths, dt) / a
     sl_v, sl_d = _slices(coef, meta, delta)                      # (D, S, S) each
     cap = _cap(meta, coef)
-    xs = jnp.minimum(jnp.abs(ks * a) / meta.h, cap).ravel()
-    xp = jnp.minimum(jnp.abs(kp * a) / meta.h, cap).ravel()
+    xs = jnp.minimum(kappa_s / meta.h, cap).ravel()
+    xp = jnp.minimum(kappa_p / meta.h, cap).ravel()
     dep = jnp.broadcast_to(jnp.asarray(depth_index, jnp.int32).reshape((-1,) + (1,) * (ks.ndim - 1)),
                            ks.shape).ravel()
-    n = xs.shape[0]
-    chunks = max(1, -(-n // CHUNK))
-    size = -(-n // chunks)
-    pad = chunks * size - n
-    flat = [jnp.pad(x, (0, pad)).reshape(chunks, size) for x in (dep, xs, xp)]
-    out = lax.map(lambda c: _block_sums(meta, sl_v, sl_d, *c, dt), flat)     # 4 x (chunks, size)
-    out = tuple(o.ravel()[:n].reshape(ks.shape) for o in out)
-    if cap < meta.kmax / meta.h:     # a corner of the table (``corner``): nodes beyond it have no value
-        beyond = (jnp.abs(ks * a) > cap * meta.h) | (jnp.abs(kp * a) > cap * meta.h)
-        out = tuple(jnp.where(beyond, jnp.nan, o) for o in out)
-    return out
+    out = _chunked(lambda *c: _block_sums(meta, sl_v, sl_d, *c, dt), dep, xs, xp)
+    return _off_corner(meta, cap, kappa_s, kappa_p, tuple(o.reshape(ks.shape) for o in out))
 
 
 def hertz_hn_depths(k_s, k_p, depths, a, table: HertzTable):
@@ -492,14 +502,9 @@ def hertz_hn_depths(k_s, k_p, depths, a, table: HertzTable):
     kp = jnp.abs(jnp.asarray(k_p, dt) * a)
     xs = jnp.minimum(ks / meta.h, cap).ravel()
     xp = jnp.minimum(kp / meta.h, cap).ravel()
-    n = xs.shape[0]
-    chunks = max(1, -(-n // CHUNK))
-    size = -(-n // chunks)
-    pad = chunks * size - n
     dnums = lax.GatherDimensionNumbers(offset_dims=(0, 1, 2), collapsed_slice_dims=(), start_index_map=(0, 1))
 
-    def block(c):
-        xs, xp = c
+    def block(xs, xp):
         i_s, i_p = jnp.floor(xs), jnp.floor(xp)
         ws = _weights(xs - i_s, p)[0]
         wp = _weights(xp - i_p, p)[0]
@@ -508,11 +513,8 @@ def hertz_hn_depths(k_s, k_p, depths, a, table: HertzTable):
                        mode=lax.GatherScatterMode.PROMISE_IN_BOUNDS)            # (p+1, p+1, D, size)
         return sum(ws[i] * sum(wp[j] * b[i, j] for j in range(p + 1)) for i in range(p + 1))   # (D, size)
 
-    flat = [jnp.pad(x, (0, pad)).reshape(chunks, size) for x in (xs, xp)]
-    val = jnp.moveaxis(lax.map(block, flat), 1, 0).reshape(depths.shape[0], -1)[:, :n].reshape(
-        (depths.shape[0],) + ks.shape)
-    if cap < meta.kmax / meta.h:
-        val = jnp.where((ks > cap * meta.h) | (kp > cap * meta.h), jnp.nan, val)
+    val = _chunked(block, xs, xp).reshape((depths.shape[0],) + ks.shape)
+    val = _off_corner(meta, cap, ks, kp, (val,))[0]
     depth_index = tuple(i for i in range(depths.shape[0]) for _ in range(ks.shape[0]))
     rep = lambda x: jnp.broadcast_to(x, (depths.shape[0],) + x.shape).reshape((-1,) + x.shape[1:])   # noqa: E731
     out = _finish(meta, depth_index, True, rep(jnp.asarray(k_s, dt)), rep(jnp.asarray(k_p, dt)), depths, a,

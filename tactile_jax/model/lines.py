@@ -102,7 +102,7 @@ def _nodes(p, omega, d1, d2, window=None, hertz_coef=None, lookup=None):
 def hertz_kappa(p, omega, d1):
     """The largest |kx| a, |ky| a of the line's nodes for (vx, vy, a) = p at omega (F,) under the Hertz window: the
     corner of the table its lookups read (``hertz.corner``)."""
-    kx, ky = _line(p, omega, d1, 1, jnp.zeros((1, 1)))[2:4]
+    kx, ky = _line(p, omega, d1, 1, jnp.zeros((1, 1)))[2:4]          # (``_line`` asks only whether there is a table)
     return jnp.max(jnp.maximum(jnp.abs(kx), jnp.abs(ky))) * p[2]
 
 

@@ -16,12 +16,10 @@ How to read the file: docs/posterior.md.
 from __future__ import annotations
 
 import datetime
-import functools
 import json
 import math
-import os
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -30,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..io.atomic import atomic_write
+from .._cores import usable_cores
 from .._optional import need
 from ..inference.problem import FitProblem
 
@@ -162,12 +161,7 @@ def _free_index(problem: FitProblem) -> np.ndarray:
     return np.flatnonzero(free)
 
 
-def cores() -> int:
-    """The CPU cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
-@functools.lru_cache(maxsize=None)
+@lru_cache(maxsize=None)
 def _pool(workers: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(workers, thread_name_prefix="tactile_jax-walkers")
 
@@ -210,7 +204,7 @@ def make_log_prob(problem: FitProblem, block: int = 16, workers: int = 1) -> Cal
     sequential = dtype != jnp.float32
     residuals = problem.residuals
     # on the device once: numpy leaves would be copied there at every call (a Hertz fit's: 14 ms a call of 16 walkers)
-    args = jax.device_put(problem.args if problem.sampling_args is None else problem.sampling_args)
+    args = jax.device_put(problem.args if problem.sampling_args is None else problem.sampling_args())
 
     def log_prob(theta_free):
         tf = np.asarray(theta_free, np.float64)
@@ -240,7 +234,7 @@ def _in_precision(problem: FitProblem, precision: str) -> FitProblem:
             return jnp.asarray(x, cplx if jnp.issubdtype(x.dtype, jnp.complexfloating) else real)
         return x
 
-    sampling = None if problem.sampling_args is None else jax.tree.map(cast, problem.sampling_args)
+    sampling = None if problem.sampling_args is None else (lambda: jax.tree.map(cast, problem.sampling_args()))
     return problem._replace(args=jax.tree.map(cast, problem.args), sampling_args=sampling,
                             theta=np.asarray(problem.theta, real))
 
@@ -351,7 +345,7 @@ def run_emcee(problem: FitProblem, *, n_walkers: int = 32, n_steps: int = 2000, 
     precision = max(precision, problem.precision, key=PRECISIONS.index)
     # the stretch move's half ensemble, spread over the cores: on a 2-core CPU two blocks of 8 walkers on two
     # threads take 60 % of the time of one block of 16 (a Hertz fit's, float64)
-    workers = max(1, min(cores(), -(-n_walkers // 2)))
+    workers = max(1, min(len(usable_cores()), -(-n_walkers // 2)))
     block = -(-n_walkers // (2 * workers))
     high = make_log_prob(problem, block=block, workers=workers)
     lp_error = math.nan
