@@ -110,6 +110,30 @@ def test_roughness_tells_a_trend_from_scatter():
     assert np.isnan(median) and np.isnan(largest) and n == 0
 
 
+def test_a_poor_fit_is_lumpy_where_every_series_long_enough_to_test_has_no_trend():
+    """A short record's band may leave only ``core.LUMPY_SERIES`` series long enough for the trend test (a 2 s
+    window of a slip along an axis): scatter in them reads as lumps, a trend in one of them does not, fewer
+    series give no verdict, and a fit that is not poor is never lumpy."""
+    rng = np.random.default_rng(4)
+    data = _data()
+    lumpy = jax.jit(lambda poor, r: core._lumpy(poor, r, data, 1.0)[1])
+    idx = row_series(data)
+    short = np.zeros(S_ALL * L)
+    short[idx[:, :core.ROUGHNESS_MIN_ROWS - 1]] = 1.0                     # every series too short for the test ...
+    for n in (core.LUMPY_SERIES, core.LUMPY_SERIES - 1):
+        keep = short.copy()
+        keep[idx[:n]] = 1.0                                               # ... but the first n
+        scatter = 4.0 * rng.standard_normal(S_ALL * L) * keep
+        assert bool(lumpy(True, jnp.asarray(scatter))) is (n == core.LUMPY_SERIES)
+        assert not bool(lumpy(False, jnp.asarray(scatter)))
+    keep = short.copy()
+    keep[idx[:core.LUMPY_SERIES]] = 1.0
+    y = 4.0 * rng.standard_normal(S_ALL * L)
+    y[idx[0]] += 8.0 * np.sin(2.0 * np.linspace(-1, 1, L))
+    assert not bool(lumpy(True, jnp.asarray(y * keep)))
+    assert core.LUMPY_SERIES <= 3           # what a 2 s window of a slip along an axis may have (benchmarks/track.py)
+
+
 def _lumpy_data(rng, sd):
     """Data rows whose every bin carries random effects along random directions, the rows' derivatives by them,
     and the data of those shapes (``residuals._profiled``'s inputs)."""
