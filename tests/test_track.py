@@ -189,6 +189,19 @@ def test_an_update_becomes_a_row(lump_sd):
     assert ("random effects" in res.message) == any(lump_sd)
 
 
+def test_a_poor_fit_says_whether_its_misfit_could_be_tested_for_a_trend():
+    """A window whose band is too narrow for the trend test (no series of ``core.ROUGHNESS_MIN_ROWS`` bins: a
+    slow oblique slip in 2 s) says so, instead of a trend ratio of nan read as a model that does not fit."""
+    from tactile_jax.inference.result import result_from_summary
+    from tactile_jax.track.tracker import step_summary
+
+    u = _update((0.0, 0.0, 0.0))
+    for roughness, said in ((4.0, "trend ratio 4.0 across frequency"), (np.nan, "the band is too narrow to test")):
+        e = u.errors._replace(status=np.array(3), redchi=np.array(3.0), roughness=np.array(roughness))
+        res = result_from_summary(step_summary(u._replace(errors=e)))
+        assert res.status == "poor_fit" and said in res.message and "nan" not in res.message
+
+
 def test_bad_blocks_are_one_line_errors():
     tracker = Tracker(FS, source="arm.h5")
     with pytest.raises(TactileInputError, match=r"arm.h5.*shape \(4, n\)"):

@@ -18,7 +18,7 @@ from ..contract import RESULT_FIELDS as RESULT_FIELDS   # the data contract's fi
 from ..model.sensor import PAPER_SENSOR
 from ..spectral.diagnose import no_band_reason
 from ..status import FIT_CODES, Status
-from .core import STEP_TOL, Summary
+from .core import ROUGHNESS_MIN_ROWS, STEP_TOL, Summary
 from .forward import N_PHYS, PARAMS, param_names
 from .problem import FitProblem
 
@@ -355,10 +355,15 @@ def result_from_summary(s: Summary, *, velocity=None, curvature_radius=None, mod
                         f"with no trend across frequency (trend ratio {float(s.roughness):.1f}), as a texture of a few "
                         "hundred persistent modes makes them; the values are the smooth texture model's, with errors "
                         "from that scatter")
-    elif status == Status.POOR_FIT:
+    elif status == Status.POOR_FIT and np.isfinite(float(s.roughness)):
         notes.insert(0, f"poor fit: reduced chi-square {res.redchi:.1f}, trend ratio {float(s.roughness):.1f} across "
                         "frequency; the joint model does not describe these spectra (a line texture, another window, "
                         "or a wrong basin): check the plot before trusting the numbers")
+    elif status == Status.POOR_FIT:
+        notes.insert(0, f"poor fit: reduced chi-square {res.redchi:.1f}; the band is too narrow to test the misfit for "
+                        f"a trend across frequency (no series of {ROUGHNESS_MIN_ROWS} bins), so a lumpy texture cannot "
+                        "be told from a model that does not describe these spectra (a line texture, another window, or "
+                        "a wrong basin): check the plot before trusting the numbers")
     n_leak = int(s.located.n_leak)
     if n_leak:
         res.warnings.append(f"{n_leak} coherent bins dropped as spectral leakage between texture lines")
