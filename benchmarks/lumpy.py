@@ -24,7 +24,7 @@ separately: both speeds within 3 % of |v| (a held speed counts by its held value
 2-sigma coverage of vx, vy and a, and rows with a value more than 3 sigma from the truth (confident wrong
 where ``ok``); the median trend ratio and its range. Times are medians per record after compilation.
 
-    python benchmarks/lumpy.py --scenes 30 --out benchmarks/out                  # ~40 min on 2 cores
+    python benchmarks/lumpy.py --scenes 30 --out benchmarks/out                  # all five sets
     python benchmarks/lumpy.py --sets axis,large --scenes 30 --out /tmp/a        # a part; then
     python benchmarks/lumpy.py --summarize /tmp/a/lumpy.jsonl /tmp/b/lumpy.jsonl --out benchmarks/out
 """

@@ -213,8 +213,9 @@ def test_a_vmapped_chunk_runs_the_far_field_only_where_a_record_needs_it(fns):
 
 def test_all_depths_at_once_and_a_corner_of_the_table(fns):
     """``hertz_hn_depths`` (one gather a node for every depth, values only) gives ``hertz_hn``'s values, far field
-    and radii of large delta included; a corner of the table (``corner``) gives the same values inside it and NaN
-    beyond it, never a value read off its edge."""
+    and radii of large delta included, from a float64 table to rounding and from the float32 table (its slices in
+    float32) to the table's own precision; a corner of the table (``corner``) gives the same values inside it and
+    NaN beyond it, never a value read off its edge."""
     f, _, table = fns
     rng = np.random.default_rng(11)
     both = jax.jit(lambda ks, kp, a, coef: hertz.hertz_hn_depths(ks, kp, jnp.asarray(DEPTHS), a,
@@ -224,9 +225,11 @@ def test_all_depths_at_once_and_a_corner_of_the_table(fns):
         ks, kp = ks[:2], kp[:2]                 # two positions' groups: (kx, ky) and (ky, kx) in the joint model
         # channels (group 0, depth 0), (0, 1), (1, 0), (1, 1)
         hn = np.asarray(_call(f, ks[[0, 0, 1, 1]], kp[[0, 0, 1, 1]], DEPTHS, a)[0])
-        got = np.asarray(both(ks, kp, a, table.coef))                      # (depth, group, nodes)
         want = np.stack([hn[[0, 2]], hn[[1, 3]]])
+        got = np.asarray(both(ks, kp, a, table.coef.astype(jnp.float64)))  # (depth, group, nodes)
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14 * np.max(np.abs(want)))
+        got = np.asarray(both(ks, kp, a, table.coef))
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-8 * np.max(np.abs(want)))
     a = 1.0e-3
     ks, kp = (x / a for x in _nodes(rng, 60.0))
     ks, kp = ks[:2], kp[:2]

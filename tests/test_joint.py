@@ -261,9 +261,10 @@ def test_a_jacobian_no_step_uses_is_not_asked_for():
 def test_the_hertz_values_alone_are_the_tangents_values():
     """Under the Hertz window alone, in float64, the values are computed from the table's Hn as they are (one
     exponential a node, no envelope): the same as the values beside the tangents (the envelope's form) and as
-    with the window traced (both windows' factors, the Hertz ones chosen), to rounding."""
+    with the window traced (both windows' factors, the Hertz ones chosen), to rounding, with the table in float64
+    as the analysis program has it; with the table kept in float32 (a sampler's corner), to its precision."""
     omega = jnp.linspace(5.0, 300.0, 9)
-    p, coef = jnp.array([0.016, 0.011, 1.5e-3]), hertz_table().coef
+    p, coef = jnp.array([0.016, 0.011, 1.5e-3]), hertz_table().coef.astype(jnp.float64)
     dp = jnp.array([1e-3, -2e-3, 1e-6])
 
     @jax.jit
@@ -279,6 +280,9 @@ def test_the_hertz_values_alone_are_the_tangents_values():
     np.testing.assert_allclose(np.asarray(value), np.asarray(beside), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(value), np.asarray(traced), rtol=0, atol=1e-12)
     assert np.array_equal(np.asarray(sign), np.asarray(sign_t))
+    (value32, sign32), _, _ = three(p, hertz_table().coef, jnp.asarray(1))
+    np.testing.assert_allclose(np.asarray(value32), np.asarray(value), rtol=0, atol=1e-6)
+    assert np.array_equal(np.asarray(sign32), np.asarray(sign))
 
 
 def test_the_hertz_line_integrals_skip_the_tangents_in_p_where_asked():

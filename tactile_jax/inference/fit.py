@@ -398,7 +398,8 @@ CORNER_PAD = 4.0
 
 def _sampling_args(data, hertz, theta):
     """The Hertz problem's arguments for a sampler: the table cut to the corner its walkers read (``hertz.corner``),
-    whose lookups cost a fraction of the whole table's (a 1 mm disk reads a twentieth of it)."""
+    whose lookups cost a fraction of the whole table's (a 1 mm disk reads a twentieth of it), and kept in float32 as
+    the table is stored, so that each walker's slices of it are contracted in float32 (``hertz._value_slices``)."""
     p = jnp.exp(jnp.asarray(np.asarray(theta)[[INDEX["log_vx"], INDEX["log_vy"], INDEX["log_a"]]]))
     kappa = float(lines.hertz_kappa(p, jnp.asarray(data.grid_abs), jnp.asarray(data.depths)[0]))
     return data, hertz_mod.corner(hertz, CORNER_FACTOR * kappa + CORNER_PAD)

@@ -396,17 +396,21 @@ def _slices(coef, meta: _Meta, delta):
 
 
 def _value_slices(coef, meta: _Meta, delta):
-    """The coefficient slices of Hn alone at the depths' delta (D,), interleaved: (S, S, D), in delta's dtype."""
+    """The coefficient slices of Hn alone at the depths' delta (D,), interleaved: (S, S, D), in the lower of the
+    table's and delta's precisions."""
     # one contraction writes them in that order: on the whole table 0.10 ms a walker, against 0.19 ms for
-    # ``_slices`` (with the delta-derivative's slices) and a transpose
+    # ``_slices`` (with the delta-derivative's slices) and a transpose. A table kept in float32 (a sampler's corner)
+    # gives float32 slices: half the bytes for each node's gather to read, which is most of a float64 walker's
+    # lookup where the slices outgrow the cache (a 2.5 mm disk's: the whole table)
     p = meta.degree
+    dt = jnp.promote_types(coef.dtype, jnp.float32) if coef.dtype == jnp.float32 else delta.dtype
     x = (jnp.log(jnp.clip(delta, meta.delta_min, meta.delta_max)) - meta.t0) / meta.dt
     i = jnp.clip(jnp.floor(x), 0, meta.nt - 2)
     w = jnp.stack(_weights(x - i, p)[0], axis=-1)                             # (D, p+1)
     # delta > delta_max (unsupported): the leading 1/delta law, as in ``_slices``
-    w = w * jnp.where(delta > meta.delta_max, meta.delta_max / delta, 1.0)[:, None]
+    w = (w * jnp.where(delta > meta.delta_max, meta.delta_max / delta, 1.0)[:, None]).astype(dt)
     blk = jnp.stack([lax.dynamic_slice_in_dim(coef, i[k].astype(jnp.int32), p + 1, axis=0)
-                     for k in range(delta.shape[0])]).astype(delta.dtype)     # (D, p+1, S*S)
+                     for k in range(delta.shape[0])]).astype(dt)              # (D, p+1, S*S)
     s = int(round(np.sqrt(coef.shape[1])))
     return jnp.einsum("dm,dmn->nd", w, blk, precision=lax.Precision.HIGHEST).reshape(s, s, delta.shape[0])
 
