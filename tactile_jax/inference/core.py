@@ -83,9 +83,9 @@ MAX_LEVERAGE = 0.9
 #: A poor fit is a lumpy texture's (``Summary.lumpy``) where at least ``LUMPY_SERIES`` series have a trend ratio,
 #: their median at most ``LUMPY_F`` bin factors and their largest at most ``LUMPY_F_MAX`` ones: its misfit has no
 #: trend in any block; the analysis refits it with the texture at each bin as random effects (``residuals``).
-#: Three series are enough for the test: a 2 s window of a slip along x
-#: (``track``, 3 cm/s, 2 mm disk) has 3 such series where others have 12-15; asking 8 leaves such windows' right
-#: fits ``poor_fit`` (``benchmarks/track.py``'s constant slips: 24 of 1,220 windows, all of them right)
+#: Three series are enough for the test: a 2 s window of a slip along x (``track``, 3 cm/s, 2 mm disk) has 3 such
+#: series where others have 12-15; asking 8 leaves such windows' right fits ``poor_fit`` (``benchmarks/track.py``'s
+#: constant slips: 24 of 1,220 windows, all of them right)
 ROUGHNESS_DEGREE = 5
 ROUGHNESS_MIN_ROWS = 14
 LUMPY_SERIES = 3
@@ -530,7 +530,8 @@ def _lumpy(poor, r, data: JointData, bin_factor):
     factors, their largest at most ``LUMPY_F_MAX``)."""
     roughness, largest, n_series = _roughness(r, data)
     factor = jnp.maximum(bin_factor, 1.0)
-    return roughness, poor & (n_series >= LUMPY_SERIES) & (roughness <= LUMPY_F * factor) & (largest <= LUMPY_F_MAX * factor)
+    flat = (roughness <= LUMPY_F * factor) & (largest <= LUMPY_F_MAX * factor)
+    return roughness, poor & (n_series >= LUMPY_SERIES) & flat
 
 
 def _roughness(r, data: JointData):

@@ -403,7 +403,7 @@ def _value_slices(coef, meta: _Meta, delta):
     # gives float32 slices: half the bytes for each node's gather to read, which is most of a float64 walker's
     # lookup where the slices outgrow the cache (a 2.5 mm disk's: the whole table)
     p = meta.degree
-    dt = jnp.promote_types(coef.dtype, jnp.float32) if coef.dtype == jnp.float32 else delta.dtype
+    dt = coef.dtype if jnp.finfo(coef.dtype).bits < jnp.finfo(delta.dtype).bits else delta.dtype
     x = (jnp.log(jnp.clip(delta, meta.delta_min, meta.delta_max)) - meta.t0) / meta.dt
     i = jnp.clip(jnp.floor(x), 0, meta.nt - 2)
     w = jnp.stack(_weights(x - i, p)[0], axis=-1)                             # (D, p+1)
