@@ -354,3 +354,36 @@ def test_the_program_is_compiled_once_before_the_workers_start(monkeypatch, tmp_
     batch_run._compile_here(FitOptions(), str(tmp_path / "other" / "jax"))     # no exception
     assert run._programs.cache_info().currsize == 1        # held before: kept
     assert not (tmp_path / "other" / "export").exists()
+
+
+def test_a_first_run_compiles_quickly_until_the_optimised_form_is_cached(tmp_path):
+    """``run.quick_first``: where no process has compiled a kept program's optimised form into the persistent cache
+    (no marker beside its export), it is compiled with ``run.QUICK_COMPILE``; a process that compiles the optimised
+    form leaves the marker, and later quick-first processes use it. Off, the optimised form is compiled at once."""
+    import jax.numpy as jnp
+
+    from tactile_jax.inference import run
+
+    before = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
+    compilation_cache.reset_cache()
+    x = jnp.linspace(0.0, 1.0, 5)
+    try:
+        run.quick_first(True)
+        quick = run._exported(lambda v: jnp.sin(v) * 2.0, "quick_probe")
+        np.testing.assert_allclose(np.asarray(quick(x)), 2.0 * np.sin(np.asarray(x)), rtol=1e-12)
+        assert run.quick_used() and not list((tmp_path / "export").glob("*.optimised"))
+        run._QUICK["used"] = False
+        run.quick_first(False)
+        optimised = run._exported(lambda v: jnp.sin(v) * 2.0, "quick_probe")        # a later run: optimised
+        np.testing.assert_allclose(np.asarray(optimised(x)), np.asarray(quick(x)), rtol=1e-12)
+        assert not run.quick_used() and len(list((tmp_path / "export").glob("*.optimised"))) == 1
+        run.quick_first(True)
+        again = run._exported(lambda v: jnp.sin(v) * 2.0, "quick_probe")            # marked: optimised
+        again(x)
+        assert not run.quick_used()
+    finally:
+        run.quick_first(False)
+        run._QUICK["used"] = False
+        jax.config.update("jax_compilation_cache_dir", before)
+        compilation_cache.reset_cache()

@@ -78,3 +78,33 @@ def test_bad_input_is_one_line_and_exit_2(runner, tmp_path, args, needle):
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], res.output
     assert "Traceback" not in res.output
+
+
+def test_one_background_compile_at_a_time(monkeypatch, tmp_path):
+    """``tactile-jax`` commands that compiled the analysis program quickly start ``cli.precompile`` in the
+    background: it compiles the optimised form unless another one holds its lock (a lock older than
+    ``LOCK_AGE`` is taken for a dead one's), and nothing starts where no quick compile ran."""
+    import os
+    import time
+
+    from tactile_jax.cli import common, precompile
+    from tactile_jax.inference import fit
+
+    calls = []
+    monkeypatch.setattr(common, "CACHE", str(tmp_path / "jax"))
+    monkeypatch.setattr(fit, "warm_up", lambda options: calls.append(options.window))
+    lock = tmp_path / "export" / "precompile-gaussian.lock"
+    lock.parent.mkdir()
+    lock.touch()
+    precompile.main(["gaussian"])                       # another one runs
+    assert calls == []
+    old = time.time() - 2 * precompile.LOCK_AGE
+    os.utime(lock, (old, old))
+    precompile.main(["gaussian"])                       # a dead one's lock
+    precompile.main(["default"])
+    assert calls == ["gaussian", None] and not lock.exists()
+
+    spawned = []
+    monkeypatch.setattr("subprocess.Popen", lambda *a, **k: spawned.append(a))
+    common.optimise_later(None)                         # no quick compile in this process
+    assert spawned == []

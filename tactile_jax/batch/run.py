@@ -650,10 +650,8 @@ def _compile_here(options: FitOptions, cache_dir: str) -> None:
     import jax
 
     from ..inference import run
-    from ..inference.fit import record_of
-    from ..inference.options import analysis_settings, choices_of
+    from ..inference.fit import warm_up
     from ..inference.select import options_for
-    from ..model.sensor import PAPER_SENSOR
 
     opts = options_for(options)
     program = "gaussian" if opts.window == "gaussian" else "default"
@@ -663,9 +661,7 @@ def _compile_here(options: FitOptions, cache_dir: str) -> None:
         return
     warm = run._programs.cache_info().currsize > 0     # programs this process holds already stay
     try:
-        noise = np.random.default_rng(0).standard_normal((4, 4096))
-        rec = record_of(noise, 1000.0, (PAPER_SENSOR.d1, PAPER_SENSOR.d2), opts)
-        run.analyse_one(rec, analysis_settings(opts), choices_of(opts))
+        warm_up(opts)
         marker.parent.mkdir(parents=True, exist_ok=True)
         marker.touch()
     except Exception:  # noqa: BLE001 - the workers compile it then

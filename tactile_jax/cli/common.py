@@ -16,7 +16,7 @@ import jax
 from .._optional import MissingExtra
 from ..errors import TactileInputError
 
-__all__ = ["CACHE", "user_errors", "parse_floats"]
+__all__ = ["CACHE", "user_errors", "parse_floats", "quick_first", "optimise_later"]
 
 # float64 is chosen here, at the entry point (the library never switches it on itself)
 jax.config.update("jax_enable_x64", True)
@@ -25,6 +25,34 @@ CACHE = os.environ.get("TACTILE_JAX_CACHE", os.path.join(os.path.expanduser("~")
 if CACHE:
     jax.config.update("jax_compilation_cache_dir", CACHE)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+def quick_first() -> None:
+    """For a command that fits a few records (``fit``, ``demo``): where no run has compiled the analysis program's
+    optimised form into the cache, compile it quickly (``inference.run.quick_first``). TACTILE_JAX_QUICK_FIRST=0
+    always compiles the optimised form."""
+    from ..inference import run
+
+    if CACHE and os.environ.get("TACTILE_JAX_QUICK_FIRST", "1") != "0":
+        run.quick_first()
+
+
+def optimise_later(window: str | None) -> None:
+    """After a command that compiled the analysis program quickly, compile its optimised form into the cache in a
+    separate background process at low priority (``tactile_jax.cli.precompile``), so that later runs load it; the
+    command itself returns at once. TACTILE_JAX_BACKGROUND_COMPILE=0 leaves it to the next run that needs it."""
+    import subprocess
+
+    from ..inference import run
+
+    if not (CACHE and run.quick_used()) or os.environ.get("TACTILE_JAX_BACKGROUND_COMPILE", "1") == "0":
+        return
+    try:
+        subprocess.Popen([sys.executable, "-m", "tactile_jax.cli.precompile", window or "default"],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True, env={**os.environ, "TACTILE_JAX_CACHE": CACHE})
+    except OSError:             # the next run compiles it
+        pass
 
 
 def user_errors(fn):

@@ -19,7 +19,7 @@ from ..simulation.scene import Scene, simulate
 from ..spectral.estimate import amplitude_ratio, estimate_spectra, usable_band
 from ..simulation.texture import RandomTexture
 
-from .common import user_errors
+from .common import optimise_later, quick_first, user_errors
 
 __all__ = ["DemoResult", "paper_fig5_scene", "run_demo", "DEFAULT_PREWHITEN", "demo"]
 
@@ -109,7 +109,11 @@ def demo(out_dir, seed, duration, method):
 
     click.echo("Fig. 5 scene (simulated): random texture sliding along x at 2.3 cm/s, a = 3 mm, Gaussian window,")
     click.echo(f"  {duration:g} s at 1 kHz, SNR 50 dB; {method} spectra after AR({DEFAULT_PREWHITEN}) prewhitening")
-    r = run_demo(out_dir, seed=seed, duration=duration, method=method)
+    quick_first()
+    try:
+        r = run_demo(out_dir, seed=seed, duration=duration, method=method)
+    finally:
+        optimise_later(None)
     v = abs(r.scene.velocity[0])
     line, ex = r.slope, r.fit
     click.echo(f"  usable band: {int(line.n_bins)} bins, {r.band_hz[0]:.1f}-{r.band_hz[1]:.1f} Hz of the x pair")

@@ -9,7 +9,7 @@ import click
 
 from ..errors import TactileInputError
 from ..status import FIT_RAN
-from .common import parse_floats, user_errors
+from .common import optimise_later, parse_floats, quick_first, user_errors
 
 
 _POSTERIOR_FILES: set = set()           # posterior files written by this ``fit`` run
@@ -104,6 +104,14 @@ def fit(files, out, mcmc, walkers, steps, seed, plot_dir, record, fit_gain, velo
     spec = None if sensor is None else read_sensor(sensor)             # a bad sensor file ends the run here
     with_sensor = {} if spec is None else {"spec": spec}
 
+    quick_first()
+    try:
+        _fit_files(files, options, record, with_sensor, out_path, mcmc_settings, plot_dir, quiet)
+    finally:
+        optimise_later(options.window)
+
+
+def _fit_files(files, options, record, with_sensor, out_path, mcmc_settings, plot_dir, quiet):
     rows, failures = [], []
     _POSTERIOR_FILES.clear()
     many = len(files) > 1

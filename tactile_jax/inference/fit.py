@@ -138,6 +138,15 @@ def record_of(signals, fs, depths, options: FitOptions, *, source=None) -> Recor
                       settings=settings_of(options), source=source)
 
 
+def warm_up(options: FitOptions) -> None:
+    """Compile (or load) the analysis program that ``options`` run, on a record of noise: its inputs have one shape
+    whatever the recording, so a noise record stands for every file."""
+    opts = model_select.options_for(options)
+    noise = np.random.default_rng(0).standard_normal((4, 4096))
+    rec = record_of(noise, 1000.0, (PAPER_SENSOR.d1, PAPER_SENSOR.d2), opts)
+    run.analyse_one(rec, analysis_settings(opts), choices_of(opts))
+
+
 def records_of(blocks, fs, depths, options: list[FitOptions]) -> list[Record]:
     """``record_of`` of many records of one length at once (``run.record_many``: their spectra in jnp), under
     options that differ at most in the known velocity and gains: what ``batch`` runs on an accelerator.
