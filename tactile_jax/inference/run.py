@@ -163,7 +163,10 @@ def _exported(fn, name: str, types=()):
         program, optimised = states[tree]
         out = program(*args)
         if optimised is not None:       # the optimised form is in the cache now
-            optimised.touch()
+            try:
+                optimised.touch()
+            except OSError:             # a cache this process cannot write to: later runs compile it again
+                pass
             states[tree] = (program, None)
         return out
 
