@@ -96,7 +96,7 @@ def _single_core():
 
 #: XLA options of a program compiled quickly for a first run on the CPU (``quick_first``): XLA's loop emitters,
 #: LLVM optimisation off. The analysis program of both windows then compiles in 10.8 s against 28.1 s (a first
-#: ``tactile-jax fit``: 19.4-20.1 s against 38.6 s) and runs about 3 times slower, 0.4-0.6 s a record (at level 1:
+#: ``tactile-jax fit``: 19.1-20.1 s against 38.6 s) and runs about 3 times slower, 0.4-0.6 s a record (at level 1:
 #: 15.6 s, 23.7 s, 20-27 % slower; docs/speed.md): what a first command's few records can afford
 QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False, "xla_backend_optimization_level": 0}
 _QUICK = {"first": False, "used": False}
