@@ -157,7 +157,7 @@ def _exported(fn, name: str, types=()):
             states[tree] = (jax.jit(exp.call), optimised)
             if _QUICK["first"] and not optimised.exists() and jax.default_backend() == "cpu":
                 try:
-                    states[tree] = (jax.jit(exp.call).lower(*args).compile(compiler_options=QUICK_COMPILE), None)
+                    states[tree] = (states[tree][0].lower(*args).compile(compiler_options=QUICK_COMPILE), None)
                     _QUICK["used"] = True
                 except Exception:   # noqa: BLE001 - an XLA without these options: the optimised form
                     pass

@@ -330,12 +330,17 @@ def table_of(coef) -> HertzTable:
     return HertzTable(coef, hertz_table().meta)
 
 
+def _side(coef) -> int:
+    """S of coefficients ``coef`` (T, S * S): the grid positions along each axis of the table, or of its corner."""
+    return int(round(np.sqrt(coef.shape[1])))
+
+
 def corner(coef, kappa: float):
     """The default table's coefficients ``coef`` (T, S * S) cut to the corner that serves |kappa_s|, |kappa_p| <= kappa
     (T, n * n): lookups at such nodes read a slice n^2 / S^2 the size (``table_of`` takes them as they are). A kappa that
     reaches the far field's blend gets the whole table back."""
     meta = hertz_table().meta
-    s = int(round(np.sqrt(coef.shape[1])))
+    s = _side(coef)
     if kappa >= meta.kmax - _BLEND:
         return coef
     n = min(s, meta.mirror + int(np.ceil(kappa / meta.h)) + meta.degree + 2)
@@ -379,7 +384,7 @@ def _slices(coef, meta: _Meta, delta):
     inside = (delta > meta.delta_min) & (delta < meta.delta_max)
     scale = jnp.where(inside, 1.0 / (meta.dt * delta), 0.0)     # d t / d delta
     ii = i.astype(jnp.int32)
-    s = int(round(np.sqrt(coef.shape[1])))
+    s = _side(coef)
     vals, ders = [], []
     for k in range(delta.shape[0]):
         wk = jnp.stack([jnp.stack([w[m][k] for m in range(p + 1)]),
@@ -411,7 +416,7 @@ def _value_slices(coef, meta: _Meta, delta):
     w = (w * jnp.where(delta > meta.delta_max, meta.delta_max / delta, 1.0)[:, None]).astype(dt)
     blk = jnp.stack([lax.dynamic_slice_in_dim(coef, i[k].astype(jnp.int32), p + 1, axis=0)
                      for k in range(delta.shape[0])]).astype(dt)              # (D, p+1, S*S)
-    s = int(round(np.sqrt(coef.shape[1])))
+    s = _side(coef)
     return jnp.einsum("dm,dmn->nd", w, blk, precision=lax.Precision.HIGHEST).reshape(s, s, delta.shape[0])
 
 
@@ -450,7 +455,7 @@ def _block_sums(meta: _Meta, sl_v, sl_d, dep, xs, xp, dt):
 def _cap(meta: _Meta, coef):
     """The largest grid position |kappa| / h the coefficients ``coef`` (T, S * S) serve: the table's kmax, or less
     for coefficients cut to a corner of the table (``corner``)."""
-    s = int(round(np.sqrt(coef.shape[1])))
+    s = _side(coef)
     return float(min(meta.kmax / meta.h, s - meta.mirror - meta.degree - 1))
 
 
