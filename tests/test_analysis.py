@@ -105,7 +105,9 @@ def test_holding_a_real_minor_speed_gives_up_once_it_cannot_win():
     given = run.analyse_one(rec, analysis_settings(options), choices_of(options)._replace(direction=2))
     assert int(chosen.direction) == 0 and float(chosen.direction_margin) > 10 * an.DIRECTION_GIVE_UP
     assert int(chosen.stages.iterations[an.DA]) == an.GIVE_UP_AFTER + 1
-    assert int(given.direction) == 1 and int(given.stages.iterations[an.DA]) > 2 * (an.GIVE_UP_AFTER + 1)
+    assert int(given.direction) == 1 and int(given.stages.iterations[an.DA]) > an.GIVE_UP_AFTER + 1
+    # the chosen one stopped short of its optimum (not converged), the given one reached it (a poor fit: vy is real)
+    assert int(chosen.stages.status[an.DA]) == 2 and int(given.stages.status[an.DA]) in (0, 3)
 
 
 @pytest.mark.slow

@@ -63,7 +63,7 @@ import numpy as np
 from .._numerics import any_in_batch
 from .core import (HERTZ_PER_GAUSS, ITERATIONS, N_STARTS, OWN_STARTS, STOP_TOL, DECREMENT_TOL, Errors, Located,
                    Record, Settings, Start, Summary, errors, fit_status, no_start, prepare, settled_physics,
-                   statistics, summary_at)
+                   statistics, step_bounds, summary_at)
 from .data import N_DATA_ROWS, N_LUMP, N_LUMP_SD, JointData
 from .forward import ANISO, INDEX, ModelSpectra, lump_basis
 from .residuals import lump_scale, residuals_and_model
@@ -629,7 +629,7 @@ def analyse(record: Record, settings: Settings, choices: Choices = Choices(), st
             n_first=_N_FIRST, n_final=plan.n_final, n_explore=plan.n_explore, skip_starts=plan.skip, ends=True,
             stop_tol=STOP_TOL, count=True, soft_after=ITERATIONS[2], soft_tol=DECREMENT_TOL, give_up_chi2=plan.give_up,
             give_up_after=GIVE_UP_AFTER, jac_use=lambda args, used: args + (used,), scout_give_up=SCOUT_GIVE_UP,
-            scout_after=SCOUT_AFTER, end_costs=True)
+            scout_after=SCOUT_AFTER, end_costs=True, max_step=step_bounds(p))
         lumped_data = data_g._replace(lump_sd=plan.lumps, lump_rows=plan.lump_rows)
         _, chi2, n_data, _, redchi, _, decrement, step_sigma = statistics(
             theta, r, jac, plan.free, lumped_data)

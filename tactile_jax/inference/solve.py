@@ -8,7 +8,7 @@ the lowest cost, and goes on from it for ``n_final`` iterations over every
 once: they dominate the compile time, and a separate loop per stage would
 compile them again. Each iteration takes a Marquardt step
 (J^T J + lam diag(J^T J)) delta = -J^T r, rescaled so that no parameter moves
-by more than ``max_step`` (log space: a factor e), accepts it if the cost
+by more than its ``max_step`` (a scalar or one bound a parameter), accepts it if the cost
 falls (Nielsen's damping update), and evaluates the residuals and the
 Jacobian once, at the trial point. The final iterations end early once the
 Gauss-Newton decrement still to go is below ``stop_tol``: a refit from near
@@ -97,7 +97,7 @@ def levenberg_marquardt(fun, starts, args, free, first, *, n_start, n_first: int
         mask = jnp.where(exploring & (local < n_first), first, free)
         jm = jac * mask
         delta, g, _ = damped_step(r, jm, mask, lam)
-        delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.max(jnp.abs(delta)), tiny(delta)))
+        delta = delta * jnp.minimum(1.0, jnp.min(max_step / jnp.maximum(jnp.abs(delta), tiny(delta))))
         trial = jnp.where(fresh, jnp.where(i == 0, starts[0], restart), theta + delta)
         # the next iteration starts afresh (a new start, or the best one's final iterations): no step uses this
         # Jacobian (the best start is evaluated again)
