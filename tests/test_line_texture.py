@@ -449,3 +449,34 @@ def test_one_line_under_an_unknown_window_gives_no_radius(a):
     assert f"a {1e3 * a:.4g} +/- " in res.message and "under the Gaussian window" in res.message
     given = fit_lines(lines, (D1, D2), velocity=v, window="gaussian")
     assert given.a == pytest.approx(a, rel=1e-3)
+
+
+def test_a_lumpy_textures_poor_fit_keeps_its_values_whatever_the_lines_say(monkeypatch):
+    """The line model's reading of a few of a lumpy texture's modes as lines does not replace the smooth models'
+    poor fit (a lumpy texture: a misfit with no trend); it stays a note in the message. The same reading replaces a
+    poor fit that is not lumpy."""
+    from tactile_jax.inference import fit as fit_mod
+    from tactile_jax.inference import line_texture
+    from tactile_jax.inference.line_texture import LineFit
+    from tactile_jax.inference.options import FitOptions
+    from tactile_jax.inference.result import FitResult
+    from tactile_jax.spectral import peaks
+    from tactile_jax.status import Status
+
+    reading = LineFit("ok", "2 lines in two or more directions: |vx| = 8.967 +/- 0.018, |vy| = 5.938 +/- 0.014 cm/s",
+                      vx=0.0897, vx_err=1.8e-4, vy=0.0594, vy_err=1.4e-4, a=2.9e-3, a_err=4e-6, a_source="fit",
+                      texture="multi", n_lines=2, n_used=2)
+    monkeypatch.setattr(peaks, "find_lines", lambda *args, **kwargs: None)
+    monkeypatch.setattr(line_texture, "fit_lines", lambda *args, **kwargs: reading)
+    signals, depths = np.zeros((4, 16)), (0.265e-3, 0.925e-3)
+
+    def smooth(texture):
+        res = FitResult(status=Status.POOR_FIT, texture=texture, redchi=2.7, message="poor fit, lumpy texture")
+        res.set("vx", value=0.0701, err=0.003)
+        return res
+
+    kept = fit_mod.with_line_model(smooth("isotropic, lumpy"), signals, 1000.0, depths, FitOptions())
+    assert kept.status == Status.POOR_FIT and kept.vx == pytest.approx(0.0701)
+    assert "line model, not used on a lumpy texture" in kept.message and "8.967" in kept.message
+    replaced = fit_mod.with_line_model(smooth("isotropic"), signals, 1000.0, depths, FitOptions())
+    assert replaced.status == Status.OK and replaced.vx == pytest.approx(0.0897)
