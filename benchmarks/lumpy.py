@@ -106,14 +106,20 @@ def run_set(kind: str, n: int, sink, seed: int = 53) -> list[dict]:
     return rows
 
 
+def _close(r: dict, q: str) -> bool:
+    """Whether a row's ``q`` (vx, vy: within ``RIGHT_SPEED`` of |v|; a: within ``RIGHT_A`` of a) is right; a held speed
+    counts by its held value, 0."""
+    tol = RIGHT_A * r["a_true"] if q == "a" else RIGHT_SPEED * r["speed"]
+    return r[q] is not None and abs(r[q] - r[f"{q}_true"]) <= tol
+
+
 def _judged(rows: list[dict]) -> dict:
     pulls, right, beyond = [], 0, 0
     for r in rows:
         p = [(r[q] - r[f"{q}_true"]) / r[f"{q}_err"] for q in ("vx", "vy", "a") if r[q] is not None and r[f"{q}_err"]]
         pulls += p
         beyond += any(abs(x) > 3 for x in p)
-        speeds = all(r[q] is not None and abs(r[q] - r[f"{q}_true"]) <= RIGHT_SPEED * r["speed"] for q in ("vx", "vy"))
-        right += speeds and r["a"] is not None and abs(r["a"] - r["a_true"]) <= RIGHT_A * r["a_true"]
+        right += all(_close(r, q) for q in ("vx", "vy", "a"))
     p = np.abs(np.asarray(pulls))
     return dict(n=len(rows), right=right, beyond_3_sigma=beyond, n_pulls=int(p.size),
                 cover1=float(np.mean(p < 1)) if p.size else None, cover2=float(np.mean(p < 2)) if p.size else None)
@@ -129,9 +135,7 @@ def _held(rows: list[dict]) -> dict:
             continue
         held += 1
         other = "vx" if axis == "vy" else "vy"
-        rest = (r[other] is not None and abs(r[other] - r[f"{other}_true"]) <= RIGHT_SPEED * r["speed"]
-                and r["a"] is not None and abs(r["a"] - r["a_true"]) <= RIGHT_A * r["a_true"])
-        if rest and abs(r[f"{axis}_true"]) > RIGHT_SPEED * r["speed"]:
+        if _close(r, other) and _close(r, "a") and not _close(r, axis):
             wrong += 1
             truths.append(abs(r[f"{axis}_true"]) / r["speed"])
     return dict(held=held, wrong_by_held=wrong, held_truths=[min(truths), max(truths)] if truths else None)
